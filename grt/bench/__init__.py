@@ -1,0 +1,1 @@
+"""Benchmarks: ``python -m grt.bench {deform,grasp}``; each prints figures, last line one JSON object."""

@@ -1,0 +1,307 @@
+"""Mesh loading, validation and repair, unit-cube normalization and Procrustes alignment.
+
+GRT's method assumes watertight, manifold triangle meshes (paper, lines 187-189). Every mesh that
+enters the system goes through :func:`load_mesh` (a built-in object name or a file path) or
+:func:`prepare_mesh` (an in-memory mesh): problems are repaired when that is safe and recorded in
+``mesh.metadata["grt_repairs"]``, or rejected with a :class:`MeshError` that names the problem and
+the fix. A mesh is never silently used as it came.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
+COMPONENT_POLICIES = ("largest", "error", "keep")
+
+
+class MeshError(ValueError):
+    """A mesh that cannot be used; the message says what is wrong and how to fix it."""
+
+
+# --------------------------------------------------------------------------------------- loading
+def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest") -> trimesh.Trimesh:
+    """Resolve a built-in object name or a mesh file into a validated mesh in meters.
+
+    Args:
+        spec: a built-in object name (``grt.objects.list_objects()``) or a path to an OBJ, STL, PLY,
+            GLB/GLTF or OFF file (meters).
+        repair: fix what can be fixed safely (see :func:`prepare_mesh`); ``False`` rejects instead.
+        components: policy for several connected components, see :func:`prepare_mesh`.
+
+    Returns:
+        A watertight, manifold, consistently outward-oriented ``trimesh.Trimesh``;
+        ``mesh.metadata["grt_repairs"]`` lists what was repaired, ``mesh.metadata["grt_source"]``
+        where it came from.
+
+    Raises:
+        MeshError: unreadable, empty or unusable file (the message names the problem and the fix).
+        grt.objects.UnknownObjectError: neither a built-in name nor an existing file.
+    """
+    from grt.objects import UnknownObjectError, get_object, list_objects
+
+    text = str(spec)
+    path = Path(text).expanduser()
+    if text in list_objects():
+        mesh = get_object(text)
+        source = f"builtin:{text}"
+    elif path.is_file():
+        mesh = _read_file(path)
+        source = str(path)
+    elif path.suffix.lower() in MESH_SUFFIXES or "/" in text:
+        raise MeshError(f"mesh file not found: {text!r}. Give an existing path or one of the built-in "
+                        f"objects: {', '.join(list_objects())}.")
+    else:
+        raise UnknownObjectError(text)
+    mesh = prepare_mesh(mesh, repair=repair, components=components)
+    mesh.metadata["grt_source"] = source
+    return mesh
+
+
+def _read_file(path: Path) -> trimesh.Trimesh:
+    if path.stat().st_size == 0:
+        raise MeshError(f"{path}: the file is empty. Export the mesh again (OBJ/STL/PLY/GLB).")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise MeshError(f"{path}: unsupported mesh format {path.suffix!r}; use one of {MESH_SUFFIXES}.")
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many kinds of errors on corrupt input
+        raise MeshError(f"{path}: could not be read as a mesh ({type(exc).__name__}: {exc}). "
+                        "Check that the file is a valid, uncorrupted mesh file.") from exc
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise MeshError(f"{path}: contains no triangles. Export a triangle mesh (not a point cloud).")
+    return loaded
+
+
+# ------------------------------------------------------------------------- validation and repair
+def mesh_problems(mesh: trimesh.Trimesh) -> list[str]:
+    """Everything that keeps ``mesh`` from being used as it is (empty list: valid).
+
+    Checks: finite vertices, no degenerate or duplicate faces, no unreferenced vertices, watertight
+    (every edge shared by exactly two faces), manifold (manifold3d accepts it, which also rejects
+    non-manifold vertices), consistent outward winding, one connected component.
+    """
+    problems = []
+    if len(mesh.faces) == 0:
+        return ["mesh has no faces"]
+    if not np.all(np.isfinite(mesh.vertices)):
+        problems.append(f"{int((~np.isfinite(mesh.vertices)).any(1).sum())} vertices are NaN/inf")
+        return problems
+    n_degenerate = int(len(mesh.faces) - mesh.nondegenerate_faces(height=1e-12).sum())
+    if n_degenerate:
+        problems.append(f"{n_degenerate} degenerate (zero-area) faces")
+    n_dup = int(len(mesh.faces) - mesh.unique_faces().sum())
+    if n_dup:
+        problems.append(f"{n_dup} duplicate faces")
+    referenced = np.zeros(len(mesh.vertices), bool)
+    referenced[mesh.faces.ravel()] = True
+    if not referenced.all():
+        problems.append(f"{int((~referenced).sum())} unreferenced vertices")
+    if not mesh.is_watertight:
+        problems.append("not watertight (has holes or open boundary edges)")
+    elif not _manifold3d_accepts(mesh):
+        problems.append("not manifold (manifold3d rejects it: non-manifold edges or vertices)")
+    if mesh.is_watertight and not mesh.is_winding_consistent:
+        problems.append("inconsistent face winding")
+    elif mesh.is_watertight and mesh.volume < 0:
+        problems.append("faces point inwards (negative volume)")
+    n_comp = len(trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)),
+                                                    min_len=1))
+    if n_comp > 1:
+        problems.append(f"{n_comp} connected components")
+    return problems
+
+
+def _manifold3d_accepts(mesh: trimesh.Trimesh) -> bool:
+    import manifold3d
+
+    m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices, np.float32),
+                                            tri_verts=np.asarray(mesh.faces, np.uint32)))
+    return m.status() == manifold3d.Error.NoError and m.num_tri() > 0
+
+
+def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str = "largest") -> trimesh.Trimesh:
+    """Validate an in-memory mesh and repair what can be repaired safely.
+
+    Repairs (each recorded in ``metadata["grt_repairs"]``): merge duplicate vertices (STL files store
+    triangles separately), drop degenerate/duplicate faces and unreferenced vertices, fix winding and
+    inward normals, fill small holes (trimesh), and as a last resort MeshFix (pymeshfix) for holes and
+    non-manifold geometry. Several components follow ``components``: ``"largest"`` keeps the largest
+    by volume (and records what was dropped), ``"error"`` rejects, ``"keep"`` keeps all (each then
+    needs its own anchor in a deformation).
+
+    Args:
+        mesh: input mesh (not modified).
+        repair: ``False`` raises on the first problem instead of repairing.
+        components: ``"largest" | "error" | "keep"``.
+
+    Returns:
+        A new valid mesh.
+
+    Raises:
+        MeshError: NaN/inf vertices, an empty mesh, or a mesh that cannot be repaired.
+    """
+    if components not in COMPONENT_POLICIES:
+        raise MeshError(f"unknown components policy {components!r}; use one of {COMPONENT_POLICIES}")
+    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+        raise MeshError("the mesh is empty (no faces). Export a closed triangle mesh.")
+    if not np.all(np.isfinite(mesh.vertices)):
+        raise MeshError("the mesh has NaN or infinite vertex coordinates; it cannot be repaired "
+                        "automatically. Re-export it from your modelling tool.")
+    repairs: list[str] = []
+    out = trimesh.Trimesh(vertices=np.array(mesh.vertices, np.float64), faces=np.array(mesh.faces),
+                          process=False)
+    problems = mesh_problems(out)
+    if problems and not repair:
+        raise MeshError(f"invalid mesh: {'; '.join(problems)}. Repair it (e.g. pymeshfix, MeshLab) "
+                        "or load it with repair=True.")
+    if problems:
+        out = _basic_cleanup(out, repairs)
+    out = _handle_components(out, components, repairs)
+    if not out.is_watertight or not _manifold3d_accepts(out):
+        trimesh.repair.fill_holes(out)
+        if out.is_watertight and _manifold3d_accepts(out):
+            repairs.append("filled holes (trimesh.repair.fill_holes)")
+        else:
+            out = _meshfix(out, repairs)
+    if not out.is_winding_consistent:
+        trimesh.repair.fix_winding(out)
+        repairs.append("made face winding consistent")
+    if out.volume < 0:
+        out.invert()
+        repairs.append("flipped inward-facing normals")
+    remaining = mesh_problems(out)
+    if components == "keep":
+        remaining = [p for p in remaining if "connected components" not in p]
+    if remaining:
+        raise MeshError(f"mesh could not be repaired: {'; '.join(remaining)}. The method needs a "
+                        "watertight manifold mesh: repair it in a modelling tool (e.g. MeshLab, "
+                        "Blender's 3D-print toolbox) and load it again.")
+    out.metadata["grt_repairs"] = repairs
+    return out
+
+
+def _basic_cleanup(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
+    n_v, n_f = len(mesh.vertices), len(mesh.faces)
+    mesh.merge_vertices()
+    if len(mesh.vertices) < n_v:
+        repairs.append(f"merged {n_v - len(mesh.vertices)} duplicate vertices")
+    keep = mesh.nondegenerate_faces(height=1e-12)
+    mesh.update_faces(keep)
+    mesh.update_faces(mesh.unique_faces())
+    if len(mesh.faces) < n_f:
+        repairs.append(f"removed {n_f - len(mesh.faces)} degenerate or duplicate faces")
+    n_v = len(mesh.vertices)
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.vertices) < n_v:
+        repairs.append(f"removed {n_v - len(mesh.vertices)} unreferenced vertices")
+    return mesh
+
+
+def _handle_components(mesh: trimesh.Trimesh, policy: str, repairs: list[str]) -> trimesh.Trimesh:
+    parts = mesh.split(only_watertight=False)
+    if len(parts) <= 1 or policy == "keep":
+        return mesh
+    if policy == "error":
+        raise MeshError(f"the mesh has {len(parts)} connected components; GRT deforms one solid. "
+                        "Merge them in a modelling tool, or pass components='largest' or 'keep'.")
+    sizes = [abs(p.volume) if p.is_watertight else p.area for p in parts]
+    best = int(np.argmax(sizes))
+    repairs.append(f"kept the largest of {len(parts)} connected components "
+                   f"(dropped {len(parts) - 1} with {sum(len(p.faces) for i, p in enumerate(parts) if i != best)} faces)")
+    return trimesh.Trimesh(parts[best].vertices, parts[best].faces, process=False)
+
+
+def _meshfix(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
+    import pymeshfix
+
+    fixer = pymeshfix.MeshFix(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    fixer.repair()
+    fixed = trimesh.Trimesh(fixer.points, fixer.faces, process=False)
+    if len(fixed.faces) == 0:
+        raise MeshError("MeshFix could not repair the mesh (nothing left). Provide a watertight mesh.")
+    repairs.append(f"repaired holes / non-manifold geometry with MeshFix "
+                   f"({len(mesh.faces)} -> {len(fixed.faces)} faces)")
+    return fixed
+
+
+def mesh_hash(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """Content hash of a mesh (vertex coordinates rounded to 1e-9 and faces); 16 hex digits."""
+    h = hashlib.sha256()
+    h.update(np.round(np.asarray(vertices, np.float64), 9).tobytes())
+    h.update(np.asarray(faces, np.int64).tobytes())
+    return h.hexdigest()[:16]
+
+
+# --------------------------------------------------------------------------------- normalization
+@dataclass(frozen=True)
+class UnitCubeFrame:
+    """Map between metric coordinates and the centered unit cube the deformation works in.
+
+    ``unit = (metric - center) / scale``; ``scale`` (meters per unit) is the largest bounding-box
+    extent, so the mesh fits ``[-0.5, 0.5]^3``.
+    """
+
+    center: np.ndarray  # (3,) meters
+    scale: float  # meters per unit-cube unit
+
+    @classmethod
+    def fit(cls, vertices: np.ndarray) -> UnitCubeFrame:
+        lo, hi = np.min(vertices, axis=0), np.max(vertices, axis=0)
+        scale = float(np.max(hi - lo))
+        if not scale > 0:
+            raise MeshError("the mesh has zero extent; cannot normalize it")
+        return cls(center=(lo + hi) / 2.0, scale=scale)
+
+    def to_unit(self, points: np.ndarray) -> np.ndarray:
+        """``(..., 3)`` meters -> unit-cube units."""
+        return (np.asarray(points) - self.center) / self.scale
+
+    def to_metric(self, points: np.ndarray) -> np.ndarray:
+        """``(..., 3)`` unit-cube units -> meters."""
+        return np.asarray(points) * self.scale + self.center
+
+
+def procrustes(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthogonal Procrustes (Kabsch): the rigid motion that best maps ``source`` onto ``target``.
+
+    Args:
+        source: ``(..., K, 3)`` points (e.g. anchors of the deformed mesh).
+        target: ``(K, 3)`` or ``(..., K, 3)`` corresponding points (the nominal anchors).
+
+    Returns:
+        ``R`` ``(..., 3, 3)`` proper rotation and ``t`` ``(..., 3)`` with ``source @ R.T + t ~ target``.
+    """
+    source = np.asarray(source, np.float64)
+    target = np.broadcast_to(np.asarray(target, np.float64), source.shape)
+    mu_s, mu_t = source.mean(-2, keepdims=True), target.mean(-2, keepdims=True)
+    H = np.swapaxes(source - mu_s, -1, -2) @ (target - mu_t)  # (..., 3, 3)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
+    D = np.zeros(H.shape)
+    D[..., 0, 0] = 1.0
+    D[..., 1, 1] = 1.0
+    D[..., 2, 2] = d
+    R = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
+    t = mu_t[..., 0, :] - (mu_s @ np.swapaxes(R, -1, -2))[..., 0, :]
+    return R, t
+
+
+def align_to_anchors(vertices: np.ndarray, anchors: np.ndarray, nominal_anchor_pos: np.ndarray) -> np.ndarray:
+    """Rigidly align deformed meshes to the nominal one on the anchor correspondences.
+
+    Args:
+        vertices: ``(..., V, 3)`` deformed vertices.
+        anchors: ``(K,)`` anchor vertex indices (K >= 3 for a unique rotation).
+        nominal_anchor_pos: ``(K, 3)`` anchor positions on the nominal mesh, same units.
+
+    Returns:
+        ``(..., V, 3)`` aligned vertices.
+    """
+    R, t = procrustes(vertices[..., anchors, :], nominal_anchor_pos)
+    return vertices @ np.swapaxes(R, -1, -2) + t[..., None, :]
