@@ -1,0 +1,135 @@
+"""The red-teaming loop: Algorithm 1 of the paper (lines 276-315) with the budget projection of
+Algorithm 2 (appendix, lines 689-698), journaled candidate by candidate.
+
+Resume works by replay: optimizers are deterministic given their seed, so re-running ``ask``/``tell``
+with the journaled scores reproduces the search exactly; a candidate already in the journal is never
+evaluated again (its stored theta must match the replayed one, which catches a changed config).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import trimesh
+
+from grt.geometry.mesh import mesh_hash
+from grt.journal import Journal, JournalError
+from grt.metrics import mean_interval, wilson_interval
+from grt.optimizers.base import Optimizer
+from grt.optimizers.budget import project_to_budget, smoothness_score
+
+if TYPE_CHECKING:
+    from grt.eval.base import Evaluator
+    from grt.geometry.deform import ShapeDeformer
+
+
+def episode_seeds(seed: int, trials: int) -> list[int]:
+    """The run's episode seeds: every candidate is scored on these same episodes (common random numbers)."""
+    if trials < 1:
+        raise ValueError(f"trials must be >= 1, got {trials}")
+    return [int(s) for s in np.random.default_rng(seed).integers(0, 2**31 - 1, size=trials)]
+
+
+@dataclass
+class RedTeamResult:
+    """What a finished (or resumed) run found."""
+
+    s0: float
+    iteration_scores: list[list[float]]
+    best_theta: np.ndarray | None
+    best_score: float
+    records: list[dict] = field(default_factory=list)
+    evaluations: int = 0  # evaluated in this process (not replayed from the journal)
+
+
+class RedTeamLoop:
+    """Drive ``optimizer`` -> budget projection -> deformation -> simulated evaluation.
+
+    Args:
+        deformer: maps ``(N, H, 3)`` unit-cube displacements to metric meshes.
+        optimizer: ask/tell search (seeded).
+        evaluator: scores meshes on ``seeds`` with a black-box policy.
+        journal: where every candidate goes as it finishes (and where a resume reads from).
+        seeds: episode seeds shared by every candidate.
+        iterations: ``T``.
+        tau: Smoothness-Score budget in meters (``None``: off).
+        binary: the score is a success rate (Wilson intervals) rather than a continuous metric.
+        complexity: ``mesh -> angular-deficit entropy`` (stored per candidate for ΔComplexity).
+        on_candidate: called with each new record (progress bars, loggers).
+        on_iteration: called with ``(t, scores)`` after each iteration.
+    """
+
+    def __init__(self, deformer: ShapeDeformer, optimizer: Optimizer, evaluator: Evaluator, journal: Journal,
+                 seeds: list[int], iterations: int, tau: float | None = None, binary: bool = True,
+                 complexity: Callable[[trimesh.Trimesh], float] | None = None,
+                 on_candidate: Callable[[dict], None] | None = None,
+                 on_iteration: Callable[[int, list[float]], None] | None = None):
+        self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
+        self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
+        self.tau, self.binary, self.complexity = tau, binary, complexity
+        self.on_candidate, self.on_iteration = on_candidate, on_iteration
+        self.evaluations = 0
+
+    def run(self) -> RedTeamResult:
+        """Evaluate the nominal object, then ``T`` iterations of Algorithm 1."""
+        s0 = self._nominal_score()
+        history: list[list[float]] = []
+        for t in range(1, self.iterations + 1):
+            thetas = self.optimizer.ask()  # mutate: floor(gamma M) handles per candidate (TOPDM)
+            thetas = project_to_budget(thetas, self.tau, self.deformer.meters_per_unit)
+            scores = [self._candidate_score(t, i, thetas[i]) for i in range(len(thetas))]
+            self.optimizer.tell(thetas, np.asarray(scores))  # keep ceil(rho N) elites, replicate
+            history.append(scores)
+            if self.on_iteration:
+                self.on_iteration(t, scores)
+        return RedTeamResult(s0=s0, iteration_scores=history, best_theta=self.optimizer.best_theta,
+                             best_score=self.optimizer.best_score, records=list(self.journal.records),
+                             evaluations=self.evaluations)
+
+    # ---------------------------------------------------------------------------------------------
+    def _nominal_score(self) -> float:
+        rec = self.journal.get(0, 0)
+        if rec is None:
+            zero = np.zeros((self.deformer.handles.size, 3))
+            rec = self._evaluate(0, 0, zero, self.deformer.mesh)
+        return float(rec["score"])
+
+    def _candidate_score(self, t: int, i: int, theta: np.ndarray) -> float:
+        rec = self.journal.get(t, i)
+        if rec is not None:
+            if not np.allclose(np.asarray(rec["theta"]), theta, rtol=1e-9, atol=1e-12):
+                raise JournalError(
+                    f"{self.journal.path}: iteration {t} candidate {i} in the journal was made with other "
+                    "parameters than this run's config (optimizer, seed, handles or budget changed). "
+                    "Resume with the run's own config (its .hydra/config.yaml) or start a new run.")
+            return float(rec["score"])
+        mesh = self.deformer.meshes(theta[None])[0]
+        return float(self._evaluate(t, i, theta, mesh)["score"])
+
+    def _evaluate(self, t: int, i: int, theta: np.ndarray, mesh: trimesh.Trimesh) -> dict:
+        start = time.perf_counter()
+        result = self.evaluator.evaluate([mesh], self.seeds)[0]
+        self.evaluations += 1
+        trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode}
+                  for o in result.trials]
+        scores = [o["score"] for o in trials]
+        ci = (wilson_interval(sum(o["success"] for o in trials), len(trials)) if self.binary
+              else mean_interval(scores))
+        rec = {
+            "iteration": t, "candidate": i, "score": float(result.score),
+            "ci95": list(ci), "outcomes": dict(Counter(o["mode"] for o in trials)),
+            "theta": np.asarray(theta).tolist(),
+            "smoothness_m": float(smoothness_score(theta, self.deformer.meters_per_unit)),
+            "entropy": float(self.complexity(mesh)) if self.complexity else None,
+            "mesh_hash": mesh_hash(mesh.vertices, mesh.faces),
+            "trials": trials, "wall_s": round(time.perf_counter() - start, 3),
+        }
+        self.journal.append(rec)
+        if self.on_candidate:
+            self.on_candidate(rec)
+        return rec

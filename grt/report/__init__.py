@@ -1,0 +1,1 @@
+"""Reports from run folders: plots, renders and the paper's tables (reads files only)."""

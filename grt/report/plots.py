@@ -1,0 +1,72 @@
+"""Pictures of a run: the degradation curve and the nominal object beside its CrashShapes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+
+
+def plot_curve(s0: float, iteration_scores: list[list[float]], path: Path, title: str = "") -> Path:
+    """Per-iteration scores (dots), best-so-far (line) and the nominal score (dashed)."""
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
+    best = [s0]
+    for t, scores in enumerate(iteration_scores, start=1):
+        ax.scatter([t] * len(scores), scores, s=14, color="tab:gray", alpha=0.6,
+                   label="candidates" if t == 1 else None)
+        best.append(min([best[-1], *scores]))
+    ax.plot(range(len(best)), best, "-o", color="tab:red", label="best so far")
+    ax.axhline(s0, ls="--", color="tab:blue", label=f"nominal S0 = {s0:.2f}")
+    ax.axhline(0.5 * s0, ls=":", color="tab:blue", alpha=0.6, label="50% of S0")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("task score (success rate)")
+    ax.set_title(title or "degradation curve")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return Path(path)
+
+
+def _draw_mesh(ax, mesh: trimesh.Trimesh, color, highlight: np.ndarray | None = None) -> None:
+    """Lambert-shaded triangles, depth-sorted by matplotlib; handles as red dots."""
+    tris = mesh.vertices[mesh.faces]
+    light = np.array([0.4, -0.5, 0.8])
+    shade = 0.35 + 0.65 * np.clip(mesh.face_normals @ (light / np.linalg.norm(light)), 0, 1)
+    facecolors = np.clip(np.asarray(color)[None, :3] * shade[:, None], 0, 1)
+    ax.add_collection3d(Poly3DCollection(tris, facecolors=facecolors, linewidths=0))
+    if highlight is not None and len(highlight):
+        ax.scatter(*highlight.T, color="red", s=12, depthshade=False)
+    lo, hi = mesh.bounds
+    c, r = (lo + hi) / 2, (hi - lo).max() / 2
+    ax.set_xlim(c[0] - r, c[0] + r)
+    ax.set_ylim(c[1] - r, c[1] + r)
+    ax.set_zlim(c[2] - r, c[2] + r)
+    ax.set_box_aspect((1, 1, 1))
+    ax.view_init(elev=25, azim=-60)
+    ax.set_axis_off()
+
+
+def plot_shapes(nominal: trimesh.Trimesh, shapes: list[tuple[trimesh.Trimesh, str]], path: Path,
+                handles: np.ndarray | None = None) -> Path:
+    """Nominal mesh (with its handles) beside the CrashShapes, each titled (e.g. with its score)."""
+    n = 1 + len(shapes)
+    fig = plt.figure(figsize=(3.2 * n, 3.4), dpi=120)
+    ax = fig.add_subplot(1, n, 1, projection="3d")
+    _draw_mesh(ax, nominal, (0.55, 0.7, 0.9), None if handles is None else nominal.vertices[handles])
+    ax.set_title("nominal", fontsize=9)
+    for k, (mesh, label) in enumerate(shapes, start=2):
+        ax = fig.add_subplot(1, n, k, projection="3d")
+        _draw_mesh(ax, mesh, (0.95, 0.6, 0.45))
+        ax.set_title(label, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return Path(path)
