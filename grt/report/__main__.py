@@ -1,0 +1,95 @@
+"""``python -m grt.report PATH [--csv OUT.csv]``: the paper's columns for a run or a multirun folder.
+
+Reads only ``summary.json`` files (and ``error.txt`` of failed jobs): Final Drop (%), ΔComplexity,
+Iter@50%, AUC, per run, plus the mean over runs of each (selector, optimizer) method, the way the
+paper aggregates objects into Tables 1 and 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+COLUMNS = ("task", "object", "selector", "optimizer", "s0", "best_score", "final_drop", "delta_complexity",
+           "iter_at_50", "auc", "evaluations", "wall_s")
+
+
+def collect(root: Path) -> tuple[list[dict], list[Path]]:
+    """Summaries under ``root`` (itself a run folder, or any tree of them) and failed job folders."""
+    if not root.exists():
+        raise SystemExit(f"error: {root} does not exist; give a run folder or a multirun folder under outputs/")
+    rows = []
+    for path in sorted(root.rglob("summary.json")):
+        data = json.loads(path.read_text())
+        data["run"] = str(path.parent)
+        rows.append(data)
+    failed = sorted(p.parent for p in root.rglob("error.txt"))
+    return rows, failed
+
+
+def _fmt(v, kind: str = "") -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    if kind == "pct":
+        return f"{100 * v:.1f}"
+    return f"{v:.3f}" if isinstance(v, float) else str(v)
+
+
+def aggregate(rows: list[dict]) -> list[dict]:
+    """Mean of each metric per (task, selector, optimizer), over objects/seeds (NaNs skipped)."""
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in rows:
+        groups[(r["task"], r["selector"], r["optimizer"])].append(r)
+    out = []
+    for (task, sel, opt), rs in sorted(groups.items()):
+        agg = {"task": task, "selector": sel, "optimizer": opt, "runs": len(rs)}
+        for k in ("final_drop", "delta_complexity", "iter_at_50", "auc"):
+            vals = [r[k] for r in rs if r.get(k) is not None and not (isinstance(r[k], float) and math.isnan(r[k]))]
+            agg[k] = sum(vals) / len(vals) if vals else None
+        out.append(agg)
+    return out
+
+
+def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
+    """Per-run table, per-method table (the paper's columns) and the failed jobs."""
+    lines = ["| task | object | selector | optimizer | S0 | best | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['task']} | {r['object']} | {r['selector']} | {r['optimizer']} | {_fmt(r['s0'])} | "
+                     f"{_fmt(r['best_score'])} | {_fmt(r['final_drop'], 'pct')} | {_fmt(r['delta_complexity'])} | "
+                     f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} |")
+    lines += ["", "Mean per method (* = 50% drop not reached; T reported):", "",
+              "| task | method | runs | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
+              "|---|---|---|---|---|---|---|"]
+    for a in agg:
+        lines.append(f"| {a['task']} | {a['selector']} + {a['optimizer']} | {a['runs']} | {_fmt(a['final_drop'], 'pct')} | "
+                     f"{_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | {_fmt(a['auc'])} |")
+    if failed:
+        lines += ["", f"{len(failed)} failed job(s) (see error.txt):"] + [f"- {p}" for p in failed]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m grt.report", description=__doc__.splitlines()[0])
+    ap.add_argument("path", type=Path, help="a run folder or a multirun folder")
+    ap.add_argument("--csv", type=Path, help="also write the per-run rows as CSV")
+    args = ap.parse_args(argv)
+    rows, failed = collect(args.path)
+    if not rows and not failed:
+        sys.exit(f"error: no summary.json under {args.path}: is it a finished GRT run folder?")
+    print(markdown(rows, aggregate(rows), failed))
+    if args.csv:
+        with open(args.csv, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+        print(f"\nwrote {args.csv}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,61 @@
+"""W&B offline logging without network; the report CLI over run folders."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from grt.loggers import WandbLogger
+from grt.report.plots import plot_curve
+
+
+def test_wandb_offline_writes_locally_and_never_the_key(tmp_path, monkeypatch):
+    secret = "sk-test-SECRET-0123456789"
+    monkeypatch.setenv("WANDB_API_KEY", secret)
+    monkeypatch.delenv("WANDB_MODE", raising=False)
+    img = plot_curve(0.9, [[0.8, 0.5], [0.4]], tmp_path / "curve.png")
+    lg = WandbLogger(project="grt-test", mode="offline")
+    lg.start(tmp_path, name="t", config={"budget": {"trials": 2}})
+    lg.log_iteration(1, {"best_score": 0.5})
+    lg.log_images({"curve": img})
+    lg.log_summary({"final_drop": 0.55})
+    lg.finish()
+    runs = list((tmp_path / "wandb").glob("offline-run-*"))
+    assert runs, "no offline run folder written"
+    for f in tmp_path.rglob("*"):
+        if f.is_file():
+            assert secret.encode() not in f.read_bytes(), f
+
+
+def test_wandb_mode_is_validated():
+    with pytest.raises(ValueError, match="logger.mode"):
+        WandbLogger(mode="sometimes")
+
+
+def _fake_run(folder: Path, obj: str, selector: str, drop: float):
+    folder.mkdir(parents=True)
+    (folder / "summary.json").write_text(json.dumps({
+        "task": "grasp", "object": obj, "selector": selector, "optimizer": "topdm", "s0": 0.9,
+        "best_score": 0.9 * (1 - drop), "final_drop": drop, "delta_complexity": 0.01, "iter_at_50": 3,
+        "reached_50": drop >= 0.5, "auc": 2.0, "evaluations": 11, "wall_s": 5.0}))
+
+
+def test_report_cli_tables_and_csv(tmp_path):
+    _fake_run(tmp_path / "0_heuristic-topdm", "mug", "heuristic", 0.6)
+    _fake_run(tmp_path / "1_heuristic-topdm", "can", "heuristic", 0.2)
+    (tmp_path / "2_x").mkdir()
+    (tmp_path / "2_x" / "error.txt").write_text("boom")
+    out = subprocess.run([sys.executable, "-m", "grt.report", str(tmp_path), "--csv", str(tmp_path / "t.csv")],
+                         capture_output=True, text=True, check=True).stdout
+    assert "| grasp | heuristic + topdm | 2 | 40.0 |" in out
+    assert "1 failed job" in out
+    assert (tmp_path / "t.csv").read_text().count("\n") == 3
+
+
+def test_report_cli_errors_clearly_on_empty_folder(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "grt.report", str(tmp_path)], capture_output=True, text=True)
+    assert res.returncode != 0 and "no summary.json" in res.stderr
