@@ -10,7 +10,10 @@ with ``G`` the per-face gradient, ``M`` the double-area mass and ``L = GᵀMG`` 
 once per mesh. Handle targets ``T_h = V0[h] + theta`` are then met by changing ``J``:
 
 * ``method="apap"`` — as APAP's public stage 1: ``J`` starts at ``G V0``, Adam (lr 1e-3, 300
-  steps, float64) on the mean squared handle error, the factorization reused in the backward pass.
+  steps, float64) on the mean squared handle error. Only the handle rows of the solve enter the
+  loss, so the forward and backward passes use the dense map ``R = K_h A⁻¹ Lᵀ Gᵀ M`` (H x 3F,
+  from H solves) and its transpose; one sparse solve at the end gives the vertices. This is the
+  same iteration as solving per Adam step, without 600 sparse solves per candidate.
 * ``method="exact"`` — the smallest area-weighted change of ``J`` (``min ||ΔJ||²_M``) that meets the
   handle targets exactly. ``V*`` is affine in ``J`` and the minimizer is linear in ``theta``, so
   ``V = V0 + W theta`` with ``W`` (V x H, shared by the three axes) from 2H solves::
@@ -117,6 +120,22 @@ class JacobianFieldDeformer:
         self._anchor_rhs = self.lam * (self.Ka.T @ self.v0[self.anchors])  # (V, 3)
         self._LtGtM = (self.L.T @ self.G.T @ self.M).tocsr()  # (V, 3F)
         self._W = self._exact_basis() if method == "exact" else None
+        self._R: np.ndarray | None = None
+        self._c: np.ndarray | None = None
+
+    def set_anchor_targets(self, positions: np.ndarray) -> None:
+        """Hold the anchors (softly) at ``positions`` ``(A, 3)`` instead of their rest positions.
+
+        Only the right-hand side changes (no refactorization). With moved anchors the rest field no
+        longer reproduces ``V0``; :meth:`__call__` in exact mode still returns ``V0 + W theta``, so
+        callers add the offset of the rest field (see ``grt.deform.deform_to_targets``).
+        """
+        positions = np.asarray(positions, np.float64)
+        if positions.shape != (self.anchors.size, 3) or not np.all(np.isfinite(positions)):
+            raise ValueError(f"anchor targets must be finite with shape ({self.anchors.size}, 3), "
+                             f"got {positions.shape}")
+        self._anchor_rhs = self.lam * (self.Ka.T @ positions)
+        self._R = self._c = None
 
     @property
     def num_handles(self) -> int:
@@ -184,21 +203,30 @@ class JacobianFieldDeformer:
         rhs += np.tile(self._anchor_rhs, (1, n))
         return np.moveaxis(self.solver.solve(rhs).reshape(len(self.v0), n, 3), 1, 0)
 
+    def _handle_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """Handle rows of the Poisson solve: ``V[h] = R J + c`` with ``R = K_h A⁻¹ Lᵀ Gᵀ M`` (H, 3F).
+
+        ``R`` comes from H solves (``A`` is symmetric, so ``R = (A⁻¹ K_hᵀ)ᵀ Lᵀ Gᵀ M``); the Adam loop
+        then needs no sparse solve at all, only this dense (H x 3F) map and its transpose.
+        """
+        if self._R is None:
+            Kh_t = np.zeros((len(self.v0), self.num_handles))
+            Kh_t[self.handles, np.arange(self.num_handles)] = 1.0
+            Z = self.solver.solve(Kh_t)  # (V, H)
+            self._R = np.ascontiguousarray((self._LtGtM.T @ Z).T)  # (H, 3F)
+            self._c = Z.T @ self._anchor_rhs  # (H, 3)
+        return self._R, self._c
+
     def _apap(self, thetas: np.ndarray) -> np.ndarray:
-        n, nv, cfg = thetas.shape[0], len(self.v0), self.adam
+        n, cfg = thetas.shape[0], self.adam
+        R, c = self._handle_map()
         targets = self.v0[self.handles][None] + thetas  # (N, H, 3)
         J = np.repeat((self.G @ self.v0)[None], n, axis=0)  # (N, 3F, 3)
         m, v2 = np.zeros_like(J), np.zeros_like(J)
         scale = 2.0 / (3 * self.num_handles)  # d/dx of the mean over (H, 3) squared errors
         for step in range(1, cfg.steps + 1):
-            verts = self.solve_vertices(J)
-            g_h = scale * (verts[:, self.handles] - targets)  # (N, H, 3) dLoss/dV at the handles
-            g_v = np.zeros((nv, n, 3))
-            g_v[self.handles] = np.moveaxis(g_h, 0, 1)
-            # Backward pass through V = A⁻¹(Lᵀ Gᵀ M J + ...): dLoss/dJ = M G L A⁻¹ g (A symmetric).
-            x = self.solver.solve(g_v.reshape(nv, 3 * n))
-            grad = self._LtGtM.T @ x  # (3F, 3N)
-            grad = np.moveaxis(grad.reshape(-1, n, 3), 1, 0)
+            g_h = scale * (np.matmul(R, J) + c - targets)  # (N, H, 3) dLoss/dV at the handles
+            grad = np.matmul(R.T, g_h)  # (N, 3F, 3) = dLoss/dJ, the adjoint of the handle map
             m = cfg.beta1 * m + (1 - cfg.beta1) * grad
             v2 = cfg.beta2 * v2 + (1 - cfg.beta2) * grad * grad
             m_hat = m / (1 - cfg.beta1**step)

@@ -1,18 +1,21 @@
 """Sparse symmetric positive-definite solves, factored once and reused.
 
-Measured on the 2-core reference machine (A = LᵀL + SᵀS of a 20k-face mesh, 10k vertices, 16
-right-hand sides; ``python -m grt.bench deform`` reports the figures for its own mesh):
+Measured on the 2-core reference machine by ``python -m grt.bench deform`` (A = LᵀL + λSᵀS of its
+10k-face test mesh, 4979 vertices, 300 anchors; 16 right-hand sides):
 
 =============  ==========  ===============
 backend        factor (s)  solve, 16 RHS
 =============  ==========  ===============
-cholespy       0.24        13 ms
-scipy splu     0.69        47 ms
+cholespy 2.2   0.07-0.12   3.5-5 ms
+scipy splu     0.19-0.21   21-192 ms
 =============  ==========  ===============
 
+(ranges over two runs on a shared, loaded machine.)
+
 cholespy (a supernodal Cholesky with CPU and GPU builds, wheels on PyPI) is the default; SciPy's
-SuperLU is the fallback when cholespy is missing. CHOLMOD (scikit-sparse) needs SuiteSparse headers
-to build and did not install from PyPI here.
+SuperLU is the fallback when cholespy is missing (same results; 6-40x slower solves, which matters
+for the exact basis and the APAP mode's solves, not for per-candidate exact deformations). CHOLMOD
+(scikit-sparse) needs SuiteSparse headers to build and did not install from PyPI here.
 """
 
 from __future__ import annotations

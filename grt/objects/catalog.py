@@ -1,0 +1,199 @@
+"""The built-in household objects: one builder per object, real-world sizes in meters.
+
+Each builder returns ``(solid, regions)`` in its own construction frame: ``solid`` is a
+``manifold3d.Manifold`` or ``trimesh.Trimesh``; ``regions`` maps a part name to an axis-aligned box
+``(2, 3)`` (min corner, max corner) in meters. :mod:`grt.objects` then moves both so the object
+rests on ``z = 0``, centered in x/y. Sizes follow common household items (YCB where one exists).
+Every object has a part narrower than ~0.07 m so a Franka Panda gripper (0.08 m opening) can grasp it.
+"""
+
+from __future__ import annotations
+
+import manifold3d as m3
+import numpy as np
+
+from grt.objects.shapes import arc, grid_box, revolve, rotate_z_to, sweep_tube
+
+PI = np.pi
+
+
+def _box(lo, hi) -> np.ndarray:
+    return np.array([lo, hi], dtype=np.float64)
+
+
+def _cat(*parts) -> np.ndarray:
+    return np.concatenate([np.atleast_2d(np.asarray(p, np.float64)) for p in parts])
+
+
+def _capsule_profile(length: float, radius: float, end_radius: float | None = None) -> np.ndarray:
+    """``(r, z)`` profile of a rod from ``z = 0`` to ``length`` with rounded ends."""
+    f = radius if end_radius is None else end_radius
+    return _cat((0, 0), arc((radius - f, f), f, -PI / 2, 0), arc((radius - f, length - f), f, 0, PI / 2),
+                (0, length))
+
+
+def mug():
+    r, h, t, tb = 0.041, 0.096, 0.005, 0.008  # outer radius, height, wall, bottom thickness
+    prof = _cat((0, 0), arc((r - 0.004, 0.004), 0.004, -PI / 2, 0), arc((r - t / 2, h - t / 2), t / 2, 0, PI),
+                arc((r - t - 0.006, tb + 0.006), 0.006, 0, -PI / 2), (0, tb))
+    body = revolve(prof, segments=48, min_spacing=0.003)
+    rc, rh, zc = 0.027, 0.0065, 0.052  # handle: centerline radius, tube radius, height
+    ring = arc((rc, 0), rh, -PI / 2, 3 * PI / 2, n=17)[:-1]
+    handle = m3.Manifold.revolve(m3.CrossSection([ring]), 36).rotate((90.0, 0.0, 0.0)).translate((r + 0.003, 0, zc))
+    cavity = revolve(_cat((0, tb), arc((r - t - 0.006, tb + 0.006), 0.006, -PI / 2, 0), (r - t, h + 0.01),
+                          (0, h + 0.01)), segments=48)
+    solid = (body + handle) - cavity
+    x_out = r + 0.003 + rc + rh
+    regions = {"handle": _box((r - 0.002, -rh - 0.002, zc - rc - rh - 0.002), (x_out + 0.002, rh + 0.002, zc + rc + rh + 0.002)),
+               "rim": _box((-r - 0.002, -r - 0.002, h - 0.012), (r + 0.002, r + 0.002, h + 0.002)),
+               "body": _box((-r - 0.002, -r - 0.002, 0), (r + 0.002, r + 0.002, h))}
+    return solid, regions
+
+
+def bottle():
+    r, h, rn = 0.033, 0.225, 0.0135  # body radius, height, neck radius
+    s = np.linspace(0, 1, 40)
+    shoulder = np.stack([rn + (r - rn) * 0.5 * (1 + np.cos(PI * s)), 0.15 + 0.04 * s], 1)
+    prof = _cat((0, 0), arc((r - 0.006, 0.006), 0.006, -PI / 2, 0), shoulder, (rn, 0.2), (0.0155, 0.2),
+                arc((0.0155 - 0.002, h - 0.002), 0.002, 0, PI / 2), (0, h))
+    regions = {"cap": _box((-0.017, -0.017, 0.2), (0.017, 0.017, h)),
+               "neck": _box((-0.02, -0.02, 0.17), (0.02, 0.02, 0.2)),
+               "body": _box((-r - 0.002, -r - 0.002, 0), (r + 0.002, r + 0.002, 0.15))}
+    return revolve(prof, segments=40, min_spacing=0.003), regions
+
+
+def bowl():
+    rf, rt, h, t = 0.035, 0.08, 0.055, 0.005  # foot radius, top radius, height, wall
+    a = np.linspace(0, PI / 2, 40)
+    outer = np.stack([rf + (rt - rf) * np.sin(a), h - h * np.cos(a)], 1)
+    inner = np.stack([rf + (rt - rf - t) * np.sin(a), h - (h - t) * np.cos(a)], 1)[::-1]
+    prof = _cat((0, 0), outer, arc((rt - t / 2, h), t / 2, 0, PI), inner, (0, t))
+    regions = {"rim": _box((-rt - 0.002, -rt - 0.002, h - 0.012), (rt + 0.002, rt + 0.002, h + t / 2 + 0.002)),
+               "base": _box((-rf - 0.005, -rf - 0.005, 0), (rf + 0.005, rf + 0.005, 0.012))}
+    return revolve(prof, segments=56, min_spacing=0.003), regions
+
+
+def can():
+    r, h, f = 0.033, 0.122, 0.004
+    prof = _cat((0, 0), arc((r - f, f), f, -PI / 2, 0), arc((r - f, h - f), f, 0, PI / 2), (0, h))
+    regions = {"top": _box((-r - 0.002, -r - 0.002, h - 0.01), (r + 0.002, r + 0.002, h)),
+               "body": _box((-r - 0.002, -r - 0.002, 0.01), (r + 0.002, r + 0.002, h - 0.01)),
+               "bottom": _box((-r - 0.002, -r - 0.002, 0), (r + 0.002, r + 0.002, 0.01))}
+    return revolve(prof, segments=40, min_spacing=0.003), regions
+
+
+def cup():
+    rb, rt, h, t, tb = 0.027, 0.04, 0.1, 0.003, 0.005  # bottom/top radius, height, wall, bottom
+    prof = _cat((0, 0), arc((rb - 0.003, 0.003), 0.003, -PI / 2, -0.13), (rt, h - t / 2),
+                arc((rt - t / 2, h - t / 2), t / 2 + 1e-9, 0, PI)[1:], (rb - t + 0.0003, tb), (0, tb))
+    regions = {"rim": _box((-rt - 0.002, -rt - 0.002, h - 0.012), (rt + 0.002, rt + 0.002, h + 0.002)),
+               "body": _box((-rt - 0.002, -rt - 0.002, 0), (rt + 0.002, rt + 0.002, h))}
+    return revolve(prof, segments=48, min_spacing=0.0025), regions
+
+
+def screwdriver():
+    rh, lh, rs, ls = 0.015, 0.1, 0.003, 0.1  # handle radius/length, shaft radius/length
+    prof = _cat((0, 0), arc((rh - 0.006, 0.006), 0.006, -PI / 2, 0), arc((rh - 0.005, lh - 0.005), 0.005, 0, PI / 2),
+                (0.008, lh), (0.0045, lh + 0.008), (rs, lh + 0.012), (rs, lh + ls - 0.008), (0.0015, lh + ls - 0.001),
+                arc((0.0, lh + ls - 0.0015), 0.0015, 0, PI / 2))
+    solid = rotate_z_to(revolve(prof, segments=24, min_spacing=0.002), "x")
+    regions = {"handle": _box((0, -rh, -rh), (lh, rh, rh)),
+               "shaft": _box((lh, -0.005, -0.005), (lh + ls - 0.008, 0.005, 0.005)),
+               "tip": _box((lh + ls - 0.01, -0.004, -0.004), (lh + ls, 0.004, 0.004))}
+    return solid, regions
+
+
+def hammer():
+    rh, lh, rk, lk = 0.0125, 0.3, 0.016, 0.11  # handle radius/length, head radius/length
+    handle = rotate_z_to(revolve(_capsule_profile(lh, rh, 0.006), segments=24, min_spacing=0.004), "x")
+    head = rotate_z_to(revolve(_capsule_profile(lk, rk, 0.004), segments=32, min_spacing=0.003), "y")
+    head = head.translate((lh - rk, -lk / 2, rk - rh))
+    regions = {"head": _box((lh - 2 * rk - 0.002, -lk / 2 - 0.002, -rh - 0.002), (lh + 0.002, lk / 2 + 0.002, 2 * rk - rh + 0.002)),
+               "handle": _box((0, -rh - 0.002, -rh - 0.002), (lh - 2 * rk - 0.002, rh + 0.002, rh + 0.002))}
+    return handle + head, regions
+
+
+def sugar_box():
+    size = (0.09, 0.045, 0.17)  # as YCB 004_sugar_box
+    lo = tuple(-s / 2 for s in size[:2]) + (0.0,)
+    hi = tuple(s / 2 for s in size[:2]) + (size[2],)
+    regions = {"top": _box((lo[0], lo[1], hi[2] - 0.02), hi), "body": _box(lo, hi)}
+    return grid_box(lo, hi, 0.0075), regions
+
+
+def spray_bottle():
+    r, h, rn = 0.035, 0.16, 0.014  # body radius/height, neck radius
+    body = revolve(_cat((0, 0), arc((r - 0.006, 0.006), 0.006, -PI / 2, 0), arc((r - 0.01, h - 0.01), 0.01, 0, PI / 2),
+                        (rn, h), (rn, h + 0.03), (0, h + 0.03)), segments=40, min_spacing=0.003)
+    head_len, head_r = 0.07, 0.016
+    head_prof = _cat((0, 0), arc((head_r - 0.006, 0.006), 0.006, -PI / 2, 0), (head_r, head_len - 0.012),
+                     (0.006, head_len - 0.006), (0.0045, head_len), (0, head_len))
+    head = rotate_z_to(revolve(head_prof, segments=28, min_spacing=0.003), "x").translate((-0.025, 0, h + 0.038))
+    trigger = revolve(_capsule_profile(0.045, 0.006), segments=24, min_spacing=0.003).translate((0.03, 0, h - 0.012))
+    regions = {"nozzle": _box((0.032, -0.008, h + 0.03), (0.047, 0.008, h + 0.046)),
+               "trigger": _box((0.022, -0.008, h - 0.014), (0.038, 0.008, h + 0.026)),
+               "head": _box((-0.027, -head_r - 0.002, h + 0.02), (0.047, head_r + 0.002, h + 0.056)),
+               "body": _box((-r - 0.002, -r - 0.002, 0), (r + 0.002, r + 0.002, h))}
+    return body + head + trigger, regions
+
+
+def banana():
+    bend, length, rmax = 0.13, 0.19, 0.018  # centerline bend radius, arc length, max radius
+    half = length / (2 * bend)
+
+    def centerline(t):
+        a = half * np.sin(t)
+        return np.stack([bend * np.sin(a), bend * (1 - np.cos(a)), np.zeros_like(a)], 1)
+
+    def radius(t):
+        return rmax * np.cos(t) ** 0.8
+
+    mesh = sweep_tube(centerline, radius, rings=46, segments=24)
+    end = bend * np.sin(half)
+    regions = {"stem_end": _box((-end - 0.005, -0.02, -0.02), (-end + 0.035, bend * (1 - np.cos(half)) + 0.02, 0.02)),
+               "tip_end": _box((end - 0.035, -0.02, -0.02), (end + 0.005, bend * (1 - np.cos(half)) + 0.02, 0.02)),
+               "middle": _box((-0.03, -0.02, -0.02), (0.03, 0.02, 0.02))}
+    return mesh, regions
+
+
+def plug():
+    # USB-A-like plug lying along x: grip body, then a metal head; grid lines coincide at the joint
+    # so the Boolean union adds no sliver triangles.
+    body = grid_box((0.0, -0.008, 0.0), (0.035, 0.008, 0.008), 0.002)
+    head = grid_box((0.031, -0.006, 0.002), (0.047, 0.006, 0.006), 0.002)
+    regions = {"head": _box((0.035, -0.0065, 0.0015), (0.0475, 0.0065, 0.0065)),
+               "body": _box((0.0, -0.0085, 0.0), (0.035, 0.0085, 0.0085))}
+    return body + head, regions
+
+
+def drawer_handle():
+    # Bar handle standing on its two posts (the drawer front is the plane z = 0).
+    span, rb, rp, hp = 0.096, 0.006, 0.005, 0.032  # post spacing, bar/post radius, post height
+    bar = rotate_z_to(revolve(_capsule_profile(0.128, rb, 0.005), segments=24, min_spacing=0.003), "x")
+    bar = bar.translate((-0.064, 0.0, hp))
+    posts = [revolve(_cat((0, 0), (0.009, 0), (0.009, 0.002), arc((rp + 0.003, 0.005), 0.003, -PI / 2, -PI, n=12),
+                          (rp, hp), (0, hp)), segments=24, min_spacing=0.002).translate((x, 0.0, 0.0))
+             for x in (-span / 2, span / 2)]
+    regions = {"bar": _box((-0.066, -rb - 0.002, hp - rb - 0.002), (0.066, rb + 0.002, hp + rb + 0.002)),
+               "left_post": _box((-span / 2 - 0.01, -0.01, 0), (-span / 2 + 0.01, 0.01, hp - rb)),
+               "right_post": _box((span / 2 - 0.01, -0.01, 0), (span / 2 + 0.01, 0.01, hp - rb))}
+    return bar + posts[0] + posts[1], regions
+
+
+BUILDERS = {f.__name__: f for f in (mug, bottle, bowl, can, cup, screwdriver, hammer, sugar_box,
+                                    spray_bottle, banana, plug, drawer_handle)}
+
+DESCRIPTIONS = {
+    "mug": "a ceramic coffee mug with a round handle, about 8 cm wide and 10 cm tall",
+    "bottle": "a plastic drink bottle with a narrow neck and a screw cap, about 22 cm tall",
+    "bowl": "a shallow round kitchen bowl with a thin wall, 16 cm across",
+    "can": "a closed food can (soup-can size), 6.6 cm across and 12 cm tall",
+    "cup": "a tapered drinking cup without a handle, 10 cm tall",
+    "screwdriver": "a screwdriver lying on the table: a thick handle and a thin steel shaft",
+    "hammer": "a hammer lying on the table: a long handle and a cylindrical head",
+    "sugar_box": "a cardboard sugar box (YCB size 9 x 4.5 x 17 cm) standing upright",
+    "spray_bottle": "a spray bottle with a trigger and a nozzle on top of a round body",
+    "banana": "a banana lying on the table, a curved elongated fruit",
+    "plug": "a USB-like plug lying on the table: a grip body and a flat metal head to insert",
+    "drawer_handle": "a bar-shaped drawer handle on two posts, mounted on a drawer front",
+}

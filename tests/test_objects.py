@@ -1,0 +1,73 @@
+"""Built-in objects: valid solids at real-world size, regions, deformable."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from grt.geometry.deform import ShapeDeformer
+from grt.geometry.mesh import mesh_problems
+from grt.objects import UnknownObjectError, get_object, list_objects, object_info, object_regions
+from grt.objects.shapes import min_face_angles
+
+REQUIRED = {"mug", "bottle", "bowl", "can", "cup", "screwdriver", "hammer", "sugar_box", "spray_bottle",
+            "banana", "plug", "drawer_handle"}
+
+
+def test_required_objects_listed():
+    assert set(list_objects()) >= REQUIRED
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_object_is_valid_metric_solid(name):
+    m = get_object(name)
+    assert mesh_problems(m) == [], name
+    assert m.volume > 0  # outward
+    lo, hi = m.bounds
+    assert abs(lo[2]) < 1e-6 and np.allclose((lo[:2] + hi[:2]) / 2, 0, atol=1e-6)
+    assert m.extents.min() > 0.005 and m.extents.max() < 0.35, m.extents  # meters, household size
+    assert 1000 <= len(m.faces) <= 6500, len(m.faces)
+    assert min_face_angles(m).min() > 1.0  # no extreme slivers
+    # graspable by a Panda gripper (0.08 m): some extent narrower than 0.07 m, or a thin rim/handle
+    assert m.extents.min() < 0.07 or {"rim", "handle"} & set(object_regions(name)), m.extents
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_regions_inside_object_bounds(name):
+    m = get_object(name)
+    regions = object_regions(name)
+    assert regions and object_info(name)["description"]
+    for part, box in regions.items():
+        assert box.shape == (2, 3) and np.all(box[1] > box[0]), part
+        inside = np.all((m.vertices >= box[0]) & (m.vertices <= box[1]), axis=1)
+        assert inside.sum() >= 3, f"{name}:{part} holds no vertices"
+
+
+def test_named_regions_and_copies():
+    assert {"handle", "rim"} <= set(object_regions("mug"))
+    assert "head" in object_regions("plug")
+    a = get_object("mug")
+    a.vertices += 1.0
+    assert get_object("mug").bounds[0][2] == 0.0  # cache not mutated
+
+
+def test_unknown_object_error():
+    with pytest.raises(UnknownObjectError) as err:
+        get_object("teapot")
+    msg = str(err.value)
+    assert "teapot" in msg and "mug" in msg and "path" in msg
+    with pytest.raises(ValueError):
+        object_regions("teapot")
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_object_deforms_with_a_few_handles(name, rng):
+    m = get_object(name)
+    v = np.asarray(m.vertices)
+    order = np.argsort(v[:, 2])
+    d = ShapeDeformer(m, order[-3:], order[:60], align=False)
+    theta = 0.01 * rng.standard_normal((3, 3))
+    out = d.vertices(theta)
+    assert np.all(np.isfinite(out))
+    target = d.frame.to_metric(d.v0_unit[order[-3:]] + theta)
+    assert np.abs(out[order[-3:]] - target).max() < 1e-8
