@@ -1,0 +1,92 @@
+"""Manual handle selection: vertex indices or regions, from config or a JSON file.
+
+The paper's fallback where the VLM has no prior (e.g. USB connectors, lines 245-248): the user
+encodes domain knowledge directly. Regions are boxes, spheres or named built-in regions
+(``"mug:handle"``), see :mod:`grt.selectors.regions`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from grt.selectors.base import MIN_ANCHORS, HandleSelector, HandleSet, farthest_vertices
+from grt.selectors.regions import RegionSpec, region_vertices
+
+FILE_KEYS = ("handles", "anchors", "handle_regions", "anchor_regions")
+
+
+class ManualSelector(HandleSelector):
+    """Handles and anchors given by the user.
+
+    Handles are the union of ``handles`` and the vertices inside ``handle_regions``; anchors the
+    union of ``anchors`` and the vertices inside ``anchor_regions``. When no anchors are given at all,
+    the anchors are the ``far_anchors`` vertices farthest from the handles (farthest-point sampling).
+    A region with more than ``max_per_region`` vertices is thinned by farthest-point sampling
+    (a whole mug handle is hundreds of vertices; each handle adds three search dimensions).
+
+    Args:
+        handles: handle vertex indices.
+        anchors: anchor vertex indices.
+        handle_regions: region specs whose vertices become handles.
+        anchor_regions: region specs whose vertices become anchors.
+        file: a JSON file with any of the keys ``handles``, ``anchors``, ``handle_regions``,
+            ``anchor_regions`` (a ``handles.json`` written by ``python -m grt.select`` works);
+            its entries are added to those given as arguments.
+        far_anchors: anchors chosen when none are given (at least 3).
+        max_per_region: the most vertices taken from one region (``None``: all).
+
+    Raises:
+        ValueError: (at ``select``) no handles, an index out of range, or handles and anchors overlap.
+    """
+
+    def __init__(self, handles: Sequence[int] = (), anchors: Sequence[int] = (),
+                 handle_regions: Sequence[RegionSpec] = (), anchor_regions: Sequence[RegionSpec] = (),
+                 file: str | None = None, far_anchors: int = 8, max_per_region: int | None = None):
+        spec = {"handles": list(handles), "anchors": list(anchors),
+                "handle_regions": list(handle_regions), "anchor_regions": list(anchor_regions)}
+        if file:
+            data = json.loads(Path(file).expanduser().read_text())
+            unknown = set(data) - set(FILE_KEYS) - {"notes", "handle_positions", "anchor_positions",
+                                                   "object", "task", "selector"}
+            if unknown:
+                raise ValueError(f"{file}: unknown keys {sorted(unknown)}; expected {FILE_KEYS}")
+            for key in FILE_KEYS:
+                spec[key] += list(data.get(key, []))
+        self.spec = spec
+        self.file = file
+        self.far_anchors = max(int(far_anchors), MIN_ANCHORS)
+        self.max_per_region = max_per_region
+
+    def _regions(self, vertices: np.ndarray, specs: list) -> np.ndarray:
+        picked = []
+        for spec in specs:
+            idx = region_vertices(vertices, [spec])
+            if len(idx) == 0:
+                raise ValueError(f"region {spec!r} contains no vertex of the mesh (check its units: meters)")
+            if self.max_per_region is not None and len(idx) > self.max_per_region:
+                local = farthest_vertices(vertices[idx], [int(np.argmin(idx))], self.max_per_region, [])
+                idx = idx[local]
+            picked.append(idx)
+        return np.concatenate(picked) if picked else np.zeros(0, np.int64)
+
+    def select(self, mesh: trimesh.Trimesh, task: str) -> HandleSet:
+        """See :meth:`HandleSelector.select`; ``task`` is recorded in the notes only."""
+        vertices = np.asarray(mesh.vertices)
+        handles = np.unique(np.concatenate([np.asarray(self.spec["handles"], np.int64),
+                                            self._regions(vertices, self.spec["handle_regions"])]))
+        if len(handles) == 0:
+            raise ValueError("manual selector: no handles; set selector.handles or selector.handle_regions "
+                             "(or selector.file)")
+        anchors = np.unique(np.concatenate([np.asarray(self.spec["anchors"], np.int64),
+                                            self._regions(vertices, self.spec["anchor_regions"])]))
+        source = "given"
+        if len(anchors) == 0:
+            anchors = np.sort(farthest_vertices(vertices, handles, self.far_anchors, handles))
+            source = f"{len(anchors)} vertices farthest from the handles"
+        notes = {"selector": "manual", "task": task, "anchors_from": source, "file": self.file}
+        return HandleSet(handles, anchors, notes).check(len(vertices))
