@@ -35,13 +35,17 @@ def plot_curve(s0: float, iteration_scores: list[list[float]], path: Path, title
     return Path(path)
 
 
-def _draw_mesh(ax, mesh: trimesh.Trimesh, color, highlight: np.ndarray | None = None) -> None:
-    """Lambert-shaded triangles, depth-sorted by matplotlib; handles as red dots."""
-    tris = mesh.vertices[mesh.faces]
+def _draw_mesh(ax, mesh: trimesh.Trimesh, color, highlight: np.ndarray | None = None,
+               elev: float = 25.0, azim: float = -60.0) -> None:
+    """Lambert-shaded, back-face-culled triangles (matplotlib sorts by depth); handles as red dots."""
+    e, a = np.radians(elev), np.radians(azim)
+    eye = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    front = mesh.face_normals @ eye > 0  # faces turned away would be painted over visible ones
+    tris = mesh.vertices[mesh.faces[front]]
     light = np.array([0.4, -0.5, 0.8])
-    shade = 0.35 + 0.65 * np.clip(mesh.face_normals @ (light / np.linalg.norm(light)), 0, 1)
+    shade = 0.35 + 0.65 * np.clip(mesh.face_normals[front] @ (light / np.linalg.norm(light)), 0, 1)
     facecolors = np.clip(np.asarray(color)[None, :3] * shade[:, None], 0, 1)
-    ax.add_collection3d(Poly3DCollection(tris, facecolors=facecolors, linewidths=0))
+    ax.add_collection3d(Poly3DCollection(tris, facecolors=facecolors, edgecolors=facecolors, linewidths=0.3))
     if highlight is not None and len(highlight):
         ax.scatter(*highlight.T, color="red", s=12, depthshade=False)
     lo, hi = mesh.bounds
@@ -50,7 +54,7 @@ def _draw_mesh(ax, mesh: trimesh.Trimesh, color, highlight: np.ndarray | None = 
     ax.set_ylim(c[1] - r, c[1] + r)
     ax.set_zlim(c[2] - r, c[2] + r)
     ax.set_box_aspect((1, 1, 1))
-    ax.view_init(elev=25, azim=-60)
+    ax.view_init(elev=elev, azim=azim)
     ax.set_axis_off()
 
 
