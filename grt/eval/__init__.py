@@ -1,0 +1,1 @@
+"""Evaluation: candidate meshes -> collision parts -> simulated trials -> a score per candidate."""

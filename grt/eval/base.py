@@ -1,0 +1,104 @@
+"""Evaluator interface: candidate meshes in, one score per candidate out.
+
+Every candidate of one :meth:`Evaluator.evaluate` call is scored on the same episode seeds (common
+random numbers, the paper's protocol): differences between candidates then come from their shapes,
+not from the luck of the draw.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from grt.metrics import mean_interval, wilson_interval
+from grt.tasks.base import TrialOutcome
+
+SIM_ERROR = "sim_error"
+
+
+@dataclass
+class CandidateResult:
+    """The score of one candidate and the trials behind it.
+
+    Attributes:
+        score: the task metric averaged over the trials that ran (``sim_error`` trials excluded:
+            a simulator failure says nothing about the policy); NaN when every trial errored.
+        trials: one :class:`TrialOutcome` per seed, in the order of the seeds given.
+        wall_s: seconds of worker time spent on this candidate (object loading + trials).
+    """
+
+    score: float
+    trials: list[TrialOutcome]
+    wall_s: float
+    info: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_trials(cls, trials: list[TrialOutcome], wall_s: float, info: dict | None = None) -> CandidateResult:
+        """Build a result, computing ``score`` from the trials."""
+        valid = [t.score for t in trials if t.mode != SIM_ERROR]
+        score = float(np.mean(valid)) if valid else float("nan")
+        return cls(score=score, trials=list(trials), wall_s=float(wall_s), info=dict(info or {}))
+
+    @property
+    def valid_trials(self) -> list[TrialOutcome]:
+        """Trials that ran to an outcome (all but ``sim_error``)."""
+        return [t for t in self.trials if t.mode != SIM_ERROR]
+
+    @property
+    def success_rate(self) -> float:
+        """Fraction of valid trials that succeeded (NaN without valid trials)."""
+        valid = self.valid_trials
+        return sum(t.success for t in valid) / len(valid) if valid else float("nan")
+
+    @property
+    def outcomes(self) -> dict[str, int]:
+        """Trial count per outcome mode (``success``, ``missed``, ..., ``sim_error``)."""
+        return dict(Counter(t.mode for t in self.trials))
+
+    @property
+    def sim_errors(self) -> int:
+        return sum(t.mode == SIM_ERROR for t in self.trials)
+
+    def ci95(self) -> tuple[float, float]:
+        """95% interval of ``score``: Wilson for binary scores, normal approximation otherwise."""
+        scores = np.array([t.score for t in self.valid_trials], np.float64)
+        if scores.size == 0:
+            return float("nan"), float("nan")
+        if np.all((scores == 0.0) | (scores == 1.0)):
+            return wilson_interval(float(scores.sum()), int(scores.size))
+        return mean_interval(scores)
+
+    def summary(self) -> dict:
+        """JSON-ready figures: score, success_rate, trials, outcomes, ci95, wall_s."""
+        low, high = self.ci95()
+        return {"score": self.score, "success_rate": self.success_rate, "trials": len(self.trials),
+                "outcomes": self.outcomes, "ci95": [low, high], "wall_s": self.wall_s}
+
+
+class Evaluator(ABC):
+    """Scores candidate meshes by simulated trials of a policy. Use as a context manager."""
+
+    @abstractmethod
+    def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int]) -> list[CandidateResult]:
+        """Score every mesh on the same episode seeds.
+
+        Args:
+            meshes: candidate meshes in meters (z up, resting on z = 0, centered in x/y).
+            seeds: episode seeds, the same for every candidate (common random numbers).
+
+        Returns:
+            One :class:`CandidateResult` per mesh, in order; its trials follow ``seeds``.
+        """
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release workers and simulators."""
+
+    def __enter__(self) -> Evaluator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

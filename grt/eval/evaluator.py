@@ -1,0 +1,140 @@
+"""SimEvaluator: candidate meshes -> convex parts -> seeded trials in worker processes -> scores.
+
+Per :meth:`SimEvaluator.evaluate` call: every candidate gets its collision parts (the nominal
+decomposition transported through the deformation, or CoACD, see :mod:`grt.eval.collision`), then
+its trials are split into chunks of consecutive seeds, one chunk per job, so that even one candidate
+keeps every worker busy; a worker loads a candidate's object once per chunk. Every candidate runs
+the same seeds (common random numbers), and a trial's outcome depends only on (mesh, seed), so the
+results do not depend on the number of workers or on the order in which jobs finish.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from grt.eval.base import CandidateResult, Evaluator
+from grt.eval.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
+from grt.eval.pool import Job, WorkerPool, sim_error
+from grt.tasks.base import TrialOutcome
+
+log = logging.getLogger(__name__)
+
+
+class SimEvaluator(Evaluator):
+    """Score candidate meshes by simulated trials of a policy in worker processes.
+
+    Args:
+        task: task config as a plain dict; ``task["session"]`` (a Hydra node with ``_target_``)
+            builds the :class:`grt.tasks.base.TaskSession` in each worker, with ``policy=``.
+        policy: policy config as a plain dict (Hydra node with ``_target_``).
+        workers: worker processes (one simulator each).
+        collision: ``"fast"`` (transport the nominal CoACD decomposition; needs ``nominal``) or
+            ``"coacd"`` (CoACD per candidate, cached by content).
+        nominal: the nominal mesh (meters), for ``collision="fast"``.
+        coacd: :class:`grt.eval.collision.CoacdParams` fields to override.
+        cache_dir: CoACD cache folder (``None``: ``$GRT_CACHE_DIR/coacd`` or ``~/.cache/grt/coacd``).
+        max_hull_vertices: cap on each convex part's vertex count (64: GPU PhysX).
+        chunk_size: trials per job; ``None`` splits each candidate's seeds over the workers.
+        max_retries: re-runs of a seed whose worker process died, before it is a ``sim_error``.
+        trial_timeout: seconds a trial may run before its worker is deemed hung and restarted.
+        start_method: ``"spawn"`` or ``"forkserver"``.
+        threads: CPU threads per worker (BLAS/OpenMP, torch, lavapipe); ``None``: library defaults.
+        progress: show a tqdm progress bar.
+        render_dir: write one picture per trial there when the session has ``render(path)``.
+    """
+
+    def __init__(self, task: dict, policy: dict, workers: int = 2, collision: str = "fast",
+                 nominal: trimesh.Trimesh | None = None, coacd: dict | None = None,
+                 cache_dir: str | None = None, max_hull_vertices: int = MAX_HULL_VERTICES,
+                 chunk_size: int | None = None, max_retries: int = 2, trial_timeout: float | None = 600.0,
+                 start_method: str = "spawn", threads: int | None = 1, progress: bool = True,
+                 render_dir: str | None = None):
+        if not isinstance(task, dict) or "session" not in task:
+            raise ValueError("task must be a plain dict with a 'session' node (OmegaConf.to_container it)")
+        if not isinstance(policy, dict):
+            raise ValueError("policy must be a plain dict (OmegaConf.to_container it)")
+        if chunk_size is not None and chunk_size < 1:
+            raise ValueError(f"chunk_size must be >= 1 or None, got {chunk_size}")
+        self.collision = make_collision(collision, nominal, coacd, cache_dir, max_hull_vertices)
+        self.collision_kind = collision
+        self.pool = WorkerPool(task, policy, workers, start_method, max_retries, trial_timeout, threads=threads)
+        self.workers, self.chunk_size, self.progress = int(workers), chunk_size, progress
+        self.render_dir = str(render_dir) if render_dir else None
+        self.collision_s = 0.0
+
+    # ------------------------------------------------------------------------------- interface
+    def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int]) -> list[CandidateResult]:
+        """Score every mesh on the same seeds; see :meth:`grt.eval.base.Evaluator.evaluate`."""
+        seeds = [int(s) for s in seeds]
+        if not seeds:
+            raise ValueError("seeds is empty: give at least one episode seed")
+        if len(set(seeds)) != len(seeds):
+            raise ValueError("seeds must be distinct (a repeated seed repeats the same episode)")
+        parts, errors = self._collision_parts(meshes)
+        jobs = self._jobs(meshes, parts, seeds)
+        trials: list[dict[int, TrialOutcome]] = [{} for _ in meshes]
+        wall = np.zeros(len(meshes))
+        for i, reason in errors.items():
+            trials[i] = {s: sim_error(s, reason) for s in seeds}
+        bar = self._progress_bar(sum(len(j.seeds) for j in jobs))
+
+        def on_trial(job: Job, outcome: TrialOutcome, seconds: float) -> None:
+            trials[job.candidate][outcome.seed] = outcome
+            wall[job.candidate] += seconds
+            if bar is not None:
+                bar.update(1)
+
+        try:
+            self.pool.run(jobs, on_trial)
+        finally:
+            if bar is not None:
+                bar.close()
+        return [CandidateResult.from_trials([t[s] for s in seeds], wall[i],
+                                            {"collision": self.collision_kind, "parts": len(parts[i])})
+                for i, t in enumerate(trials)]
+
+    def close(self) -> None:
+        """Stop the worker processes."""
+        self.pool.close()
+
+    # -------------------------------------------------------------------------------- helpers
+    def _collision_parts(self, meshes: list[trimesh.Trimesh]) -> tuple[list[list[np.ndarray]], dict[int, str]]:
+        """Parts per mesh; a mesh whose decomposition fails gets no parts and an error reason."""
+        start = time.perf_counter()
+        parts, errors = [], {}
+        for i, mesh in enumerate(meshes):
+            try:
+                parts.append(self.collision.parts(mesh))
+            except (CollisionError, ValueError) as exc:
+                log.warning("candidate %d (%s): %s", i, mesh_label(mesh), exc)
+                parts.append([])
+                errors[i] = f"collision geometry failed: {exc}"
+        self.collision_s += time.perf_counter() - start
+        return parts, errors
+
+    def _jobs(self, meshes: list[trimesh.Trimesh], parts: list[list[np.ndarray]], seeds: list[int]) -> list[Job]:
+        size = self.chunk_size or math.ceil(len(seeds) / self.workers)
+        if self.render_dir:
+            Path(self.render_dir).mkdir(parents=True, exist_ok=True)
+        jobs = []
+        for i, mesh in enumerate(meshes):
+            if not parts[i]:
+                continue
+            meta = {k: v for k, v in mesh.metadata.items() if isinstance(v, str | int | float)}
+            for lo in range(0, len(seeds), size):
+                jobs.append(Job(len(jobs), i, np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces),
+                                parts[i], list(seeds[lo:lo + size]), self.render_dir, meta))
+        return jobs
+
+    def _progress_bar(self, total: int):
+        if not self.progress or not total:
+            return None
+        from tqdm import tqdm
+
+        return tqdm(total=total, desc="trials", unit="trial", leave=False)

@@ -1,0 +1,303 @@
+"""Simulator worker processes: each builds its task session once and runs (candidate, seeds) jobs.
+
+One process per worker (the ManiSkill CPU backend holds one environment per process), started with
+``spawn`` (or ``forkserver``): nothing of the parent's simulator state leaks into a worker. Each
+worker talks to the parent over its own pipe, so a worker that dies mid-message breaks only its own
+channel. The parent (:class:`WorkerPool`) hands out jobs, collects one message per trial, and when a
+worker dies (segfault, ``os._exit``, OOM kill) or hangs past ``trial_timeout`` it restarts the worker
+and re-runs the seeds that had not finished; a seed that kills its worker more than ``max_retries``
+times becomes a ``sim_error`` outcome.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import logging
+import multiprocessing as mp
+import os
+import sys
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from grt.eval.base import SIM_ERROR
+from grt.tasks.base import TrialOutcome
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Job:
+    """Trials of one candidate for one worker.
+
+    Attributes:
+        job_id: unique within a :meth:`WorkerPool.run` call.
+        candidate: index of the candidate mesh.
+        vertices: ``(V, 3)`` mesh vertices (m); faces: ``(F, 3)``.
+        parts: convex collision parts, each ``(K, 3)`` (m).
+        seeds: the episode seeds still to run, in order.
+        render_dir: folder for one picture per trial, or ``None``.
+    """
+
+    job_id: int
+    candidate: int
+    vertices: np.ndarray
+    faces: np.ndarray
+    parts: list[np.ndarray]
+    seeds: list[int]
+    render_dir: str | None = None
+    metadata: dict = field(default_factory=dict)
+
+
+def sim_error(seed: int, reason: str, **info) -> TrialOutcome:
+    """A trial that produced no outcome because the simulation failed; ``info["error"]`` says why."""
+    return TrialOutcome(seed=int(seed), score=0.0, success=False, mode=SIM_ERROR, info={"error": reason, **info})
+
+
+def build_session(task: dict, policy: dict):
+    """Instantiate ``task["session"]`` with the instantiated ``policy`` (plain dicts, Hydra style)."""
+    import hydra.utils
+
+    return hydra.utils.instantiate(task["session"], policy=hydra.utils.instantiate(policy), _convert_="all")
+
+
+# ------------------------------------------------------------------------------------ worker side
+def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None = None) -> None:
+    """Worker process entry: build the session, then run jobs until told to stop (``None``)."""
+    try:
+        session = build_session(task, policy)
+    except BaseException:
+        conn.send(("fatal", traceback.format_exc()))
+        return
+    if threads and "torch" in sys.modules:  # torch also reads OMP_NUM_THREADS; make sure
+        sys.modules["torch"].set_num_threads(threads)
+    gc.collect()
+    gc.freeze()  # ManiSkill's reconfigure runs gc.collect(): keep the long-lived heap out of it
+    conn.send(("ready", None))
+    try:
+        while (job := conn.recv()) is not None:
+            _run_job(session, job, conn)
+    finally:
+        session.close()
+
+
+def _run_job(session, job: Job, conn: Connection) -> None:
+    mesh = trimesh.Trimesh(job.vertices, job.faces, process=False, metadata=dict(job.metadata))
+    start = time.perf_counter()  # the first trial's time includes loading the object
+    load_error = _load(session, mesh, job.parts)
+    conn.send(("loaded", job.job_id))
+    for seed in job.seeds:
+        if load_error is not None:
+            outcome = sim_error(seed, load_error)
+        else:
+            try:
+                outcome = session.run_trial(int(seed))
+            except Exception as exc:
+                outcome = sim_error(seed, f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
+                # The session's state is unknown after a failure: rebuild the object before going on.
+                load_error = _load(session, mesh, job.parts)
+            else:
+                _render(session, job, seed)
+        now = time.perf_counter()
+        conn.send(("trial", (job.job_id, int(seed), outcome, now - start)))
+        start = now
+    conn.send(("done", job.job_id))
+
+
+def _load(session, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> str | None:
+    try:
+        session.load_object(mesh, parts)
+    except Exception as exc:
+        return f"load_object failed: {type(exc).__name__}: {exc}"
+    return None
+
+
+def _render(session, job: Job, seed: int) -> None:
+    render = getattr(session, "render", None)
+    if job.render_dir is None or not callable(render):
+        return
+    path = Path(job.render_dir) / f"candidate{job.candidate:03d}_seed{seed}.png"
+    try:
+        render(str(path))
+    except Exception as exc:  # a picture is a nicety: never lose a trial to it
+        log.warning("rendering %s failed: %s", path, exc)
+
+
+# ------------------------------------------------------------------------------------ parent side
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "LP_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _thread_limits(threads: int | None):
+    """Environment a spawned worker starts with: thread-pool sizes read when its libraries load."""
+    if not threads:
+        yield
+        return
+    saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
+    os.environ.update({k: str(threads) for k in THREAD_VARIABLES})
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+@dataclass
+class _Worker:
+    proc: mp.process.BaseProcess
+    conn: Connection
+    ready: bool = False
+    job: Job | None = None
+    last_message: float = field(default_factory=time.monotonic)
+
+
+class WorkerPool:
+    """Worker processes that each hold one task session.
+
+    Args:
+        task: task config as a plain dict (``task["session"]`` is instantiated in each worker).
+        policy: policy config as a plain dict.
+        workers: number of processes.
+        start_method: ``"spawn"`` or ``"forkserver"`` (``fork`` would copy simulator state).
+        max_retries: re-runs of a seed whose worker died, before it becomes ``sim_error``.
+        trial_timeout: seconds without any message from a busy worker before it is killed (a hang).
+        startup_timeout: seconds a worker may take to build its session.
+        threads: CPU threads per worker for BLAS/OpenMP, torch and the lavapipe renderer (``None``:
+            the libraries' defaults). Workers already fill the cores; more threads only contend.
+    """
+
+    def __init__(self, task: dict, policy: dict, workers: int = 2, start_method: str = "spawn",
+                 max_retries: int = 2, trial_timeout: float | None = 600.0, startup_timeout: float = 300.0,
+                 threads: int | None = 1):
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        if start_method not in ("spawn", "forkserver"):
+            raise ValueError(f"start_method must be 'spawn' or 'forkserver', got {start_method!r}")
+        self.task, self.policy = task, policy
+        self.num_workers, self.max_retries = int(workers), int(max_retries)
+        self.trial_timeout, self.startup_timeout = trial_timeout, startup_timeout
+        self.ctx = mp.get_context(start_method)
+        self.threads = int(threads) if threads else None
+        self.workers: list[_Worker] = []
+        self.restarts = 0  # workers replaced (crashed, hung or failed to start)
+        self.startup_failures = 0
+
+    def _spawn(self) -> _Worker:
+        parent, child = self.ctx.Pipe(duplex=True)
+        proc = self.ctx.Process(target=worker_main, args=(self.task, self.policy, child, self.threads),
+                                daemon=True)
+        with _thread_limits(self.threads):
+            proc.start()
+        child.close()
+        return _Worker(proc, parent)
+
+    def start(self) -> None:
+        """Start the missing workers (each builds its session in parallel with the others)."""
+        while len(self.workers) < self.num_workers:
+            self.workers.append(self._spawn())
+
+    def run(self, jobs: list[Job], on_trial: Callable[[Job, TrialOutcome, float], None]) -> None:
+        """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order.
+
+        Raises:
+            RuntimeError: a worker cannot build its session (config or import error).
+        """
+        self.start()
+        pending, crashes = deque(jobs), {}
+        while pending or any(w.job is not None for w in self.workers):
+            self._assign(pending)
+            ready = wait([w.conn for w in self.workers] + [w.proc.sentinel for w in self.workers], timeout=1.0)
+            for w in list(self.workers):
+                if w.conn in ready or w.proc.sentinel in ready:
+                    self._drain(w, on_trial, pending, crashes)
+                elif self._timed_out(w):
+                    log.warning("worker %d silent for too long: killing it", w.proc.pid)
+                    w.proc.kill()
+                    w.proc.join()
+                    self._replace(w, on_trial, pending, crashes, "timed out (hung)")
+
+    def _assign(self, pending: deque) -> None:
+        for w in self.workers:
+            if w.ready and w.job is None and pending:
+                w.job = pending.popleft()
+                w.last_message = time.monotonic()
+                # A worker that died while idle is noticed through its sentinel; the job is re-queued.
+                with contextlib.suppress(OSError):
+                    w.conn.send(w.job)
+
+    def _timed_out(self, w: _Worker) -> bool:
+        if w.ready and w.job is None:  # idle: nothing to wait for
+            return False
+        limit = self.trial_timeout if w.ready else self.startup_timeout
+        return limit is not None and time.monotonic() - w.last_message > limit
+
+    def _drain(self, w: _Worker, on_trial, pending: deque, crashes: dict) -> None:
+        try:
+            while w.conn.poll():
+                self._handle(w, w.conn.recv(), on_trial)
+        except (EOFError, OSError):  # its end of the pipe closed: the process is exiting
+            w.proc.join(timeout=5.0)
+            if w.proc.is_alive():
+                w.proc.kill()
+                w.proc.join()
+        if not w.proc.is_alive():
+            w.proc.join()
+            self._replace(w, on_trial, pending, crashes, f"died (exit code {w.proc.exitcode})")
+
+    def _handle(self, w: _Worker, msg: tuple, on_trial) -> None:
+        kind, payload = msg
+        w.last_message = time.monotonic()
+        if kind == "fatal":
+            self.close()
+            raise RuntimeError(f"an evaluator worker could not build its task session:\n{payload}")
+        if kind == "ready":
+            w.ready = True
+        elif kind == "trial" and w.job is not None:
+            _job_id, seed, outcome, seconds = payload
+            w.job.seeds.remove(seed)
+            on_trial(w.job, outcome, seconds)
+        elif kind == "done":
+            w.job = None
+
+    def _replace(self, w: _Worker, on_trial, pending: deque, crashes: dict, why: str) -> None:
+        """Restart a dead worker; blame its current seed, re-queue the rest of its job."""
+        job, self.restarts = w.job, self.restarts + 1
+        w.conn.close()
+        if job is None and not w.ready:
+            self.startup_failures += 1
+            if self.startup_failures > self.num_workers * (self.max_retries + 1):
+                self.close()
+                raise RuntimeError(f"evaluator workers keep dying while starting: last one {why}")
+        elif job is not None and job.seeds:
+            key = (job.candidate, job.seeds[0])
+            crashes[key] = crashes.get(key, 0) + 1
+            log.warning("worker %s on candidate %d seed %d; restarting it", why, *key)
+            if crashes[key] > self.max_retries:
+                seed = job.seeds.pop(0)
+                on_trial(job, sim_error(seed, f"worker process {why}, {crashes[key]} times"), 0.0)
+            if job.seeds:
+                pending.appendleft(job)
+        self.workers[self.workers.index(w)] = self._spawn()
+
+    def close(self) -> None:
+        """Stop every worker (politely, then by force)."""
+        for w in self.workers:
+            with contextlib.suppress(OSError):
+                w.conn.send(None)
+        for w in self.workers:
+            w.proc.join(timeout=10)
+            if w.proc.is_alive():
+                w.proc.kill()
+                w.proc.join()
+            w.conn.close()
+        self.workers = []

@@ -1,0 +1,67 @@
+"""The evaluator with the real grasp task (ManiSkill CPU simulation): slow, marked sim + slow."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pytest
+from omegaconf import OmegaConf
+
+from grt.bench.grasp import compose
+from grt.eval.evaluator import SimEvaluator
+from grt.geometry.mesh import load_mesh, mesh_hash
+from grt.tasks.base import FAILURE_MODES
+
+pytestmark = [pytest.mark.sim, pytest.mark.slow]
+SEEDS = [1, 2]
+
+
+@pytest.fixture(scope="module")
+def grasp_configs():
+    cfg = compose(["task=grasp_2cam"])  # two small cameras: the cheapest grasp variant
+    return OmegaConf.to_container(cfg.task, resolve=True), OmegaConf.to_container(cfg.policy, resolve=True)
+
+
+def _trials(result):
+    return [(t.seed, t.mode, t.score) for t in result.trials]
+
+
+def test_same_content_under_a_new_name_scores_the_same(grasp_configs, tmp_path):
+    task, policy = grasp_configs
+    first_path, renamed_path = tmp_path / "mug.ply", tmp_path / "my_renamed_cup.ply"
+    load_mesh("mug").export(first_path)
+    shutil.copy(first_path, renamed_path)
+    first, renamed = load_mesh(first_path), load_mesh(renamed_path)
+    assert mesh_hash(renamed.vertices, renamed.faces) == mesh_hash(first.vertices, first.faces)
+    with SimEvaluator(task, policy, workers=2, collision="coacd", cache_dir=str(tmp_path / "coacd"),
+                      progress=False) as ev:
+        a, b = ev.evaluate([first, renamed], SEEDS)
+        assert (ev.collision.misses, ev.collision.hits) == (1, 1)  # one CoACD run, found by content
+    assert [t.seed for t in a.trials] == SEEDS
+    assert all(t.mode in FAILURE_MODES and t.mode != "sim_error" for t in a.trials), a.trials
+    assert a.info["parts"] >= 2
+    assert _trials(b) == _trials(a)
+    assert [t.info["object_final"] for t in b.trials] == [t.info["object_final"] for t in a.trials]
+
+
+def test_builtin_object_two_trials_fast_collision(grasp_configs):
+    task, policy = grasp_configs
+    mug = load_mesh("mug")
+    with SimEvaluator(task, policy, workers=2, nominal=mug, progress=False) as ev:
+        (result,) = ev.evaluate([mug], SEEDS)
+    assert len(result.trials) == 2 and result.sim_errors == 0, result.trials
+    assert 0.0 <= result.score <= 1.0 and sum(result.outcomes.values()) == 2
+
+
+def test_cli_last_line_is_json(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "grt.evaluate", "object=can", "task=grasp_2cam",
+                           "budget.trials=2", "evaluator.progress=false", f"hydra.run.dir={tmp_path}"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert summary["trials"] == 2 and sum(summary["outcomes"].values()) == 2
+    assert {"success_rate", "ci95", "wall_s", "trials_per_s"} <= summary.keys()
+    assert (tmp_path / "evaluation.json").is_file()
