@@ -33,8 +33,8 @@ def degradation_curve(s0: float, iteration_scores: Sequence[Sequence[float]]) ->
         ``(T + 1,)`` relative degradation, NaN when ``s0 == 0``.
     """
     best = [float(s0)]
-    for scores in iteration_scores:
-        best.append(min([best[-1], *map(float, scores)]))
+    for scores in iteration_scores:  # NaN = a candidate the simulator could not score: skipped
+        best.append(min([best[-1], *(float(s) for s in scores if not math.isnan(float(s)))]))
     best = np.asarray(best)
     if s0 == 0:
         return np.full(best.shape, np.nan)
@@ -72,6 +72,7 @@ def delta_complexity(nominal_entropy: float, candidates: Sequence[tuple[float, f
     Returns:
         ``median(H(T_theta(M)) - H(M))`` over the ``k`` lowest scores (NaN with no candidates).
     """
+    candidates = [c for c in candidates if not math.isnan(c[0])]
     if not candidates:
         return float("nan")
     order = sorted(candidates, key=lambda c: c[0])[:k]

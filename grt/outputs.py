@@ -28,7 +28,7 @@ def git_state() -> dict:
 
 def crash_records(records: list[dict], k: int) -> list[dict]:
     """The ``k`` lowest-scoring explored candidates (iterations >= 1), earliest first among ties."""
-    explored = [r for r in records if r["iteration"] >= 1]
+    explored = [r for r in records if r["iteration"] >= 1 and r["score"] == r["score"]]  # not NaN
     return sorted(explored, key=lambda r: (r["score"], r["iteration"], r["candidate"]))[:k]
 
 

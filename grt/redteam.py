@@ -78,13 +78,20 @@ class RedTeamLoop:
     def run(self) -> RedTeamResult:
         """Evaluate the nominal object, then ``T`` iterations of Algorithm 1."""
         s0 = self._nominal_score()
+        if not np.isfinite(s0):
+            raise RuntimeError("every trial on the nominal object ended in sim_error: the task cannot be "
+                               "scored on this object (see the journal's first line for the reasons)")
+        self._s0 = s0
         history: list[list[float]] = []
         for t in range(1, self.iterations + 1):
             thetas = self.optimizer.ask()  # mutate: floor(gamma M) handles per candidate (TOPDM)
             thetas = project_to_budget(thetas, self.tau, self.deformer.meters_per_unit)
             scores = [self._candidate_score(t, i, thetas[i]) for i in range(len(thetas))]
-            self.optimizer.tell(thetas, np.asarray(scores))  # keep ceil(rho N) elites, replicate
-            history.append(scores)
+            # A candidate the simulator could not score (all trials sim_error, NaN) is no CrashShape:
+            # the search sees it as the nominal object, so it is never an elite by accident.
+            search = np.where(np.isfinite(scores), scores, s0)
+            self.optimizer.tell(thetas, search)  # keep ceil(rho N) elites, replicate
+            history.append([float(x) for x in scores])
             if self.on_iteration:
                 self.on_iteration(t, scores)
         return RedTeamResult(s0=s0, iteration_scores=history, best_theta=self.optimizer.best_theta,

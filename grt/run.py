@@ -55,7 +55,8 @@ def run(cfg: DictConfig) -> dict:
     if len(journal):
         log.info("resuming %s: %d candidates already in the journal", run_dir, len(journal))
     logger = instantiate(cfg.logger)
-    evaluator = instantiate(cfg.evaluator)(task=_plain(cfg.task), policy=_plain(cfg.policy), nominal=mesh)
+    evaluator = instantiate(cfg.evaluator)(task=_plain(cfg.task), policy=_plain(cfg.policy), nominal=mesh,
+                                           progress=False)  # the red-team bar shows progress
     total = 1 + cfg.budget.population * cfg.budget.iterations
     bar = tqdm(total=total, desc="red-team", unit="cand", initial=len(journal), dynamic_ncols=True)
     try:

@@ -20,7 +20,7 @@ def plot_curve(s0: float, iteration_scores: list[list[float]], path: Path, title
     for t, scores in enumerate(iteration_scores, start=1):
         ax.scatter([t] * len(scores), scores, s=14, color="tab:gray", alpha=0.6,
                    label="candidates" if t == 1 else None)
-        best.append(min([best[-1], *scores]))
+        best.append(min([best[-1], *(x for x in scores if x == x)]))  # NaN: unscorable, skipped
     ax.plot(range(len(best)), best, "-o", color="tab:red", label="best so far")
     ax.axhline(s0, ls="--", color="tab:blue", label=f"nominal S0 = {s0:.2f}")
     ax.axhline(0.5 * s0, ls=":", color="tab:blue", alpha=0.6, label="50% of S0")
@@ -47,7 +47,8 @@ def _draw_mesh(ax, mesh: trimesh.Trimesh, color, highlight: np.ndarray | None = 
     facecolors = np.clip(np.asarray(color)[None, :3] * shade[:, None], 0, 1)
     ax.add_collection3d(Poly3DCollection(tris, facecolors=facecolors, edgecolors=facecolors, linewidths=0.3))
     if highlight is not None and len(highlight):
-        ax.scatter(*highlight.T, color="red", s=12, depthshade=False)
+        ax.computed_zorder = False  # handles stay visible, also those on the far side
+        ax.scatter(*highlight.T, color="red", edgecolors="black", s=18, depthshade=False, zorder=10)
     lo, hi = mesh.bounds
     c, r = (lo + hi) / 2, (hi - lo).max() / 2
     ax.set_xlim(c[0] - r, c[0] + r)

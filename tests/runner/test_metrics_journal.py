@@ -67,3 +67,9 @@ def test_journal_corrupt_middle_line_is_a_clear_error(tmp_path):
     path.write_text('{"iteration": 0}\n')
     with pytest.raises(JournalError, match="lacks"):
         Journal(path)
+
+
+def test_unscorable_candidates_are_skipped():
+    curve = metrics.degradation_curve(1.0, [[float("nan"), 0.8], [float("nan")]])
+    assert curve.tolist() == pytest.approx([0, 0.2, 0.2])
+    assert metrics.delta_complexity(1.0, [(float("nan"), 9.0), (0.5, 2.0)]) == pytest.approx(1.0)

@@ -1,0 +1,142 @@
+"""Policy interfaces of GRT: black boxes the tasks call, chosen by ``_target_`` in ``conf/policy``.
+
+Two kinds of policy plug into the grasp task (:class:`grt.tasks.grasp.GraspSession`):
+
+1. **Grasp planners** (open loop, like the paper's Contact-GraspNet): :class:`GraspPolicy` maps one
+   observation of the object (a fused point cloud) to ranked 6-D grasps; the task executes the best
+   reachable one (IK, approach, close, lift, shake). To bring your own predictor, implement
+   :class:`GraspPredictor` and wrap it in :class:`PointCloudGraspPolicy`::
+
+       # conf/policy/my_predictor.yaml
+       _target_: grt.policies.base.PointCloudGraspPolicy
+       predictor:
+         _target_: my_package.MyPredictor   # predict(points (P,3), normals (P,3), rng) -> list[Grasp]
+       max_retries: 10
+
+2. **Closed-loop policies**: :class:`ClosedLoopPolicy` gets an observation dict every control step
+   and returns a ``pd_joint_pos`` action; the task then lifts and shakes to judge the grasp::
+
+       # conf/policy/my_policy.yaml
+       _target_: my_package.MyPolicy          # a ClosedLoopPolicy subclass
+
+Frames and units: world frame, meters, z up, table top at ``table_z``. A grasp pose is the
+tool-center-point (TCP, between the fingertips) pose: its z axis is the approach direction (from
+the palm towards the object), its y axis the closing direction of the fingers.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from grt.policies.pointcloud import oriented_cloud
+
+
+@dataclass
+class Grasp:
+    """A parallel-jaw grasp.
+
+    Attributes:
+        pose: ``(4, 4)`` world-frame TCP pose (z = approach, y = closing axis), meters.
+        width: distance (m) between the two contacts.
+        score: higher is better; only the order matters.
+        info: predictor-specific details (e.g. antipodality, contact points).
+    """
+
+    pose: np.ndarray
+    width: float
+    score: float
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class GraspObservation:
+    """What a grasp planner sees once per trial.
+
+    Attributes:
+        points: ``(P, 3)`` segmented object points, world frame (m).
+        viewpoints: ``(P, 3)`` position (m) of the camera that saw each point (orients normals).
+        table_z: height (m) of the table top.
+    """
+
+    points: np.ndarray
+    viewpoints: np.ndarray
+    table_z: float = 0.0
+
+
+class GraspPredictor(ABC):
+    """A point-cloud grasp predictor (one inference)."""
+
+    @abstractmethod
+    def predict(self, points: np.ndarray, normals: np.ndarray, rng: np.random.Generator,
+                table_z: float = 0.0) -> list[Grasp]:
+        """Propose grasps on a cloud.
+
+        Args:
+            points: ``(P, 3)`` object points (m, world).
+            normals: ``(P, 3)`` unit outward normals.
+            rng: the trial's random generator (deterministic given the trial seed).
+            table_z: height (m) of the table top (for collision checks).
+
+        Returns:
+            Grasps sorted best first; empty if none passed the predictor's checks.
+        """
+
+
+class GraspPolicy(ABC):
+    """Open-loop grasp planner: observation -> ranked grasps, executed by the task."""
+
+    @abstractmethod
+    def plan(self, obs: GraspObservation, seed: int) -> list[Grasp]:
+        """Ranked grasps (best first) for one trial; empty means ``no_grasp_found``."""
+
+
+class PointCloudGraspPolicy(GraspPolicy):
+    """Downsample, estimate normals (camera by camera), run a :class:`GraspPredictor`, retry while it
+    finds nothing.
+
+    Args:
+        predictor: the grasp predictor.
+        max_retries: inferences before giving up (the paper retries Contact-GraspNet up to 10 times).
+        voxel_size: voxel (m) of the downsampled cloud.
+        normal_neighbors: neighbors per point of the PCA normal estimate.
+    """
+
+    def __init__(self, predictor: GraspPredictor, max_retries: int = 10, voxel_size: float = 0.004,
+                 normal_neighbors: int = 12):
+        self.predictor = predictor
+        self.max_retries, self.voxel_size = int(max_retries), float(voxel_size)
+        self.normal_neighbors = int(normal_neighbors)
+
+    def plan(self, obs: GraspObservation, seed: int) -> list[Grasp]:
+        if len(obs.points) < self.normal_neighbors:
+            return []
+        points, normals = oriented_cloud(obs.points, obs.viewpoints, self.voxel_size, self.normal_neighbors)
+        if len(points) < self.normal_neighbors:
+            return []
+        rng = np.random.default_rng(seed)
+        for attempt in range(self.max_retries):
+            grasps = self.predictor.predict(points, normals, rng, table_z=obs.table_z)
+            if grasps:
+                for g in grasps:
+                    g.info["attempt"] = attempt
+                return grasps
+        return []
+
+
+class ClosedLoopPolicy(ABC):
+    """A policy that acts every control step (the task judges the grasp by lifting and shaking).
+
+    ``obs`` holds ``qpos`` (9,) joint positions (rad, fingers in m), ``tcp_pose`` (4, 4),
+    ``points`` / ``viewpoints`` (P, 3) of the object cloud (captured once per trial) and ``step``.
+    """
+
+    def reset(self, seed: int) -> None:  # noqa: B027 - optional hook
+        """Start a new trial."""
+
+    @abstractmethod
+    def act(self, obs: dict) -> np.ndarray | None:
+        """A ``pd_joint_pos`` action (8,): 7 arm joint targets (rad) + gripper in [-1 closed, 1 open];
+        ``None`` when done (the task then lifts and shakes)."""

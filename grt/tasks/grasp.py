@@ -1,0 +1,252 @@
+"""The grasp task session: one GRT-Grasp-v1 env per worker, seeded grasp-lift-shake trials.
+
+An episode (the paper's protocol, appendix "Grasping Task"):
+
+1. rebuild the scene and reset with the trial seed (object XY ±2 cm, yaw ±0.79 rad), let the
+   object settle. Rebuilding (a ~30 ms reconfigure) makes a trial depend only on (object, seed):
+   with a plain reset PhysX carries state over and the same seed ends millimeters apart after
+   different predecessors (measured), which could flip a borderline trial;
+2. render the depth cameras once, fuse the object's points, ask the policy for ranked grasps
+   (``no_grasp_found`` if none);
+3. solve IK for the via (12 cm back along the approach axis), pre-grasp (5 cm back), grasp, lift
+   and shake poses of
+   the best grasp that is reachable, trying each grasp also turned 180 deg about its approach axis
+   (``unreachable`` if none);
+4. move to the via pose, slide in to the pre-grasp, approach, close, lift 10 cm (``missed`` /
+   ``dropped_lift``), shake 10 cm sideways and back (``dropped_shake``), and judge: object lifted
+   and pinched by both fingers.
+
+Any NaN, runaway object or physics exception ends the trial as ``sim_error``.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+
+import gymnasium as gym
+import numpy as np
+import trimesh
+
+from grt.policies.base import ClosedLoopPolicy, GraspObservation
+from grt.tasks.base import TaskSession, TrialOutcome
+from grt.tasks.grasp_env import GraspEnv  # registers GRT-Grasp-v1 (env docstring: Description, ...)
+from grt.tasks.motion import PandaIK, offset_along_approach, rotate_about_z, translated
+
+__all__ = ["GraspEnv", "GraspSession", "SimError"]
+
+
+class SimError(RuntimeError):
+    """The simulation state became invalid (NaN, runaway object)."""
+
+
+class GraspSession(TaskSession):
+    """Grasp-lift-shake trials of one policy on one object at a time.
+
+    Args:
+        policy: a ``GraspPolicy`` (``plan(obs, seed) -> list[Grasp]``) or a ``ClosedLoopPolicy``.
+        env_id: the registered ManiSkill env.
+        num_cameras, camera_width, camera_height: the depth cameras (paper: 6 at 360 x 240).
+        xy_range: object XY noise half-range (m); yaw_range: yaw noise half-range (rad).
+        object_friction: friction coefficient of the object; object_density: kg/m^3.
+        sim_freq, control_freq: physics and control rates (Hz).
+        pregrasp_offset: approach distance (m) along the approach axis.
+        lift_height: lift (m); shake_distance: lateral shake amplitude (m, world y).
+        transit_offset: distance (m) along the approach axis of the via pose the arm first moves to;
+            the hand then slides straight in, through space the grasp's collision check kept free.
+        max_ik_candidates: ranked grasps tried for reachability before ``unreachable``.
+        steps: control steps per phase: ``settle, transit, pregrasp, approach, close, lift, shake,
+            hold``.
+        max_policy_steps: step budget of a closed-loop policy.
+    """
+
+    def __init__(self, policy, env_id: str = "GRT-Grasp-v1", num_cameras: int = 6, camera_width: int = 360,
+                 camera_height: int = 240, xy_range: float = 0.02, yaw_range: float = 0.79,
+                 object_friction: float = 1.0, object_density: float = 500.0, sim_freq: int = 100,
+                 control_freq: int = 20, pregrasp_offset: float = 0.05, lift_height: float = 0.10,
+                 shake_distance: float = 0.10, transit_offset: float = 0.12, max_ik_candidates: int = 10,
+                 steps: tuple[int, ...] = (6, 12, 6, 8, 6, 10, 6, 3), max_policy_steps: int = 100):
+        self.policy = policy
+        self.pregrasp_offset, self.lift_height = float(pregrasp_offset), float(lift_height)
+        self.shake_distance, self.max_ik_candidates = float(shake_distance), int(max_ik_candidates)
+        self.transit_offset = float(transit_offset)
+        names = ("settle", "transit", "pregrasp", "approach", "close", "lift", "shake", "hold")
+        self.steps = dict(zip(names, (int(s) for s in steps), strict=True))
+        self.max_policy_steps = int(max_policy_steps)
+        self._sim_steps, self._sim_s = 0, 0.0
+        self.env = gym.make(env_id, obs_mode="none", control_mode="pd_joint_pos", sim_backend="physx_cpu",
+                            render_backend="cpu", num_cameras=num_cameras, camera_width=camera_width,
+                            camera_height=camera_height, xy_range=xy_range, yaw_range=yaw_range,
+                            object_friction=object_friction, object_density=object_density,
+                            sim_freq=sim_freq, control_freq=control_freq, evaluate_every_step=False,
+                            reward_mode="none")
+        self.env.reset(seed=0)
+        self.ik = PandaIK(self.unwrapped.agent.robot)
+        # ManiSkill's reconfigure runs gc.collect(); freezing the long-lived objects makes it cheap.
+        gc.collect()
+        gc.freeze()
+
+    @property
+    def unwrapped(self):
+        return self.env.unwrapped
+
+    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
+        self.unwrapped.set_object(mesh, parts)
+        self.env.reset(seed=0, options=dict(reconfigure=True))
+        self.ik = PandaIK(self.unwrapped.agent.robot)
+
+    def close(self) -> None:
+        self.env.close()
+
+    def render(self, path: str) -> None:
+        """Write a PNG of the scene as it is now (after a trial: its final state), 512 x 512."""
+        from PIL import Image
+
+        image = self.unwrapped.render_rgb_array()
+        Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
+
+    def run_trial(self, seed: int) -> TrialOutcome:
+        info: dict = {}
+        self._sim_steps, self._sim_s = 0, 0.0
+        start = time.perf_counter()
+        try:
+            mode = self._episode(int(seed), info)
+        except Exception as err:  # physics / rendering failures must not pass silently
+            mode, info["error"] = "sim_error", f"{type(err).__name__}: {err}"
+        info["wall_s"] = time.perf_counter() - start
+        info["control_steps"], info["sim_s"] = self._sim_steps, self._sim_s
+        try:
+            info["object_final"] = self._object_pose().round(6).tolist()  # (x, y, z) m
+        except Exception:  # the scene itself may be what failed
+            info["object_final"] = None
+        success = mode == "success"
+        return TrialOutcome(seed=int(seed), score=float(success), success=success, mode=mode, info=info)
+
+    # --- episode -------------------------------------------------------------------------------------
+    def _episode(self, seed: int, info: dict) -> str:
+        env = self.unwrapped
+        self.env.reset(seed=seed, options=dict(reconfigure=True))
+        self._target = self._qpos()
+        self._gripper = 1.0
+        info["placement"] = dict(env.placement)
+        self._move(self._target, self.steps["settle"])
+        self._check_health()
+        self._rest_z = self._object_pose()[2]
+        t = time.perf_counter()
+        points, views = env.capture_object_cloud()
+        info["capture_s"], info["num_points"] = time.perf_counter() - t, len(points)
+        if isinstance(self.policy, ClosedLoopPolicy):
+            return self._closed_loop(seed, points, views, info)
+        t = time.perf_counter()
+        grasps = self.policy.plan(GraspObservation(points, views, table_z=0.0), seed)
+        info["plan_s"], info["num_grasps"] = time.perf_counter() - t, len(grasps)
+        if not grasps:
+            return "no_grasp_found"
+        plan = self._reachable_plan(grasps, info)
+        if plan is None:
+            return "unreachable"
+        q_via, q_pre, q_grasp, grasp_pose = plan
+        self._move(q_via, self.steps["transit"])
+        self._move(q_pre, self.steps["pregrasp"])
+        self._move(q_grasp, self.steps["approach"])
+        return self._close_lift_shake(grasp_pose, info)
+
+    def _reachable_plan(self, grasps, info: dict):
+        """(q_via, q_pregrasp, q_grasp, pose) of the best grasp whose motion has IK solutions, or None."""
+        q0 = self._qpos()
+        for rank, grasp in enumerate(grasps[: self.max_ik_candidates]):
+            options = []
+            for flip in (0.0, np.pi):
+                pose = rotate_about_z(grasp.pose, flip)
+                q_via = self.ik.solve(offset_along_approach(pose, -self.transit_offset), q0)
+                q_pre = None if q_via is None else self.ik.solve(
+                    offset_along_approach(pose, -self.pregrasp_offset), q_via)
+                q_grasp = None if q_pre is None else self.ik.solve(pose, q_pre)
+                if q_grasp is None or self._lift_shake_joints(pose, q_grasp) is None:
+                    continue
+                if np.abs(q_grasp - q_via)[:7].max() > 0.8:  # IK jumped branches: no straight approach
+                    continue
+                options.append((np.abs(q_via - q0)[:7].sum(), q_via, q_pre, q_grasp, pose))
+            if options:
+                _, q_via, q_pre, q_grasp, pose = min(options, key=lambda o: o[0])
+                info.update(grasp_rank=rank, grasp_score=grasp.score, grasp_width=grasp.width,
+                            approach_z=float(pose[2, 2]))
+                return q_via, q_pre, q_grasp, pose
+        return None
+
+    def _lift_shake_joints(self, pose: np.ndarray, q_grasp: np.ndarray):
+        lift_pose = translated(pose, np.array([0.0, 0.0, self.lift_height]))
+        q_lift = self.ik.solve(lift_pose, q_grasp)
+        if q_lift is None:
+            return None
+        q_shake = self.ik.solve(translated(lift_pose, np.array([0.0, self.shake_distance, 0.0])), q_lift)
+        return None if q_shake is None else (q_lift, q_shake)
+
+    def _close_lift_shake(self, grasp_pose: np.ndarray, info: dict) -> str:
+        q_grasp = self._target.copy()
+        self._gripper = -1.0
+        self._move(q_grasp, self.steps["close"])
+        self._check_health()
+        info["grasped_after_close"] = held_at_close = self._pinched()
+        joints = self._lift_shake_joints(grasp_pose, self._qpos())
+        if joints is None:
+            return "unreachable"
+        q_lift, q_shake = joints
+        self._move(q_lift, self.steps["lift"])
+        self._move(q_lift, self.steps["hold"])
+        self._check_health()
+        if not self._held():
+            return "dropped_lift" if held_at_close else "missed"
+        self._move(q_shake, self.steps["shake"])
+        self._move(q_lift, self.steps["shake"])
+        self._move(q_lift, self.steps["hold"])
+        self._check_health()
+        return "success" if self._held() else "dropped_shake"
+
+    def _closed_loop(self, seed: int, points: np.ndarray, views: np.ndarray, info: dict) -> str:
+        self.policy.reset(seed)
+        for step in range(self.max_policy_steps):
+            tcp = self.unwrapped.agent.tcp.pose.sp.to_transformation_matrix()
+            obs = dict(qpos=self._qpos(), tcp_pose=tcp, points=points, viewpoints=views, step=step)
+            action = self.policy.act(obs)
+            if action is None:
+                break
+            action = np.asarray(action, np.float64).reshape(8)
+            self._target, self._gripper = np.concatenate([action[:7], self._target[7:]]), float(action[7])
+            self._move(self._target, 1)
+        self._check_health()
+        tcp = self.unwrapped.agent.tcp.pose.sp.to_transformation_matrix()
+        return self._close_lift_shake(tcp, info)
+
+    # --- simulation helpers --------------------------------------------------------------------------
+    def _qpos(self) -> np.ndarray:
+        return self.unwrapped.agent.robot.get_qpos()[0].numpy().astype(np.float64)
+
+    def _object_pose(self) -> np.ndarray:
+        return self.unwrapped.obj.pose.p[0].numpy().astype(np.float64)
+
+    def _move(self, q_to: np.ndarray, steps: int) -> None:
+        """Smoothstep joint interpolation from the last target to ``q_to`` over ``steps`` control steps."""
+        q_from, start = self._target, time.perf_counter()
+        for k in range(1, steps + 1):
+            s = k / steps
+            q = q_from + (q_to - q_from) * (3 * s * s - 2 * s * s * s)
+            self.env.step(np.concatenate([q[:7], [self._gripper]]).astype(np.float32))
+        self._target = np.asarray(q_to, np.float64).copy()
+        self._sim_steps += steps
+        self._sim_s += time.perf_counter() - start
+
+    def _pinched(self) -> bool:
+        return bool(self.unwrapped.agent.is_grasping(self.unwrapped.obj)[0])
+
+    def _held(self) -> bool:
+        lifted = self._object_pose()[2] - self._rest_z > 0.5 * self.lift_height
+        return bool(lifted and self._pinched())
+
+    def _check_health(self) -> None:
+        p, q = self._object_pose(), self._qpos()
+        speed = float(np.linalg.norm(self.unwrapped.obj.linear_velocity[0].numpy()))
+        if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q)) and np.isfinite(speed)):
+            raise SimError("non-finite object or robot state")
+        if np.abs(p[:2]).max() > 1.0 or p[2] < -0.05 or p[2] > 1.0 or speed > 5.0:
+            raise SimError(f"object ran away: position {p.round(3).tolist()}, speed {speed:.2f} m/s")
