@@ -3,7 +3,9 @@
 **Description.** A Franka Panda stands at the edge of a table (ManiSkill's ``TableSceneBuilder``,
 table top at z = 0, robot base at (-0.615, 0, 0)). One rigid object rests near the table's origin.
 The policy sees a segmented, world-frame point cloud of the object fused from ``num_cameras`` depth
-cameras on a hemisphere around it (rendered once per trial, on request, not every step); the task
+cameras on a hemisphere around it (rendered once per trial, on request, not every step; ManiSkill's
+"minimal" shader, so depth is quantized to 1 mm; the object's pixels are picked by its segmentation
+id, so the robot occludes but never pollutes the cloud); the task
 (:class:`grt.tasks.grasp.GraspSession`) executes its grasp: approach from a 5 cm pre-grasp offset,
 close, lift 10 cm, shake 10 cm sideways and back.
 
