@@ -5,8 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from grt.optimizers import (CEMOptimizer, CMAESOptimizer, GaussianOptimizer, TOPDMOptimizer,
-                            project_to_budget, smoothness_score)
+from grt.optimizers import (
+    CEMOptimizer,
+    CMAESOptimizer,
+    GaussianOptimizer,
+    TOPDMOptimizer,
+    project_to_budget,
+    smoothness_score,
+)
 
 ALL = [TOPDMOptimizer, GaussianOptimizer, CEMOptimizer, CMAESOptimizer]
 TARGET = np.linspace(-0.05, 0.05, 24).reshape(8, 3)
