@@ -122,7 +122,8 @@ class RedTeamLoop:
         start = time.perf_counter()
         result = self.evaluator.evaluate([mesh], self.seeds)[0]
         self.evaluations += 1
-        trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode}
+        trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode,
+                   **({"error": str(o.info["error"])[:500]} if o.info.get("error") else {})}
                   for o in result.trials]
         scores = [o["score"] for o in trials]
         ci = (wilson_interval(sum(o["success"] for o in trials), len(trials)) if self.binary
