@@ -161,6 +161,17 @@ class _Worker:
     last_message: float = field(default_factory=time.monotonic)
 
 
+def _reset_foreign_start_method() -> None:
+    """Make spawned children loadable when a launcher installed its own start method.
+
+    A spawned child re-applies the parent's *global* start method; under Hydra's joblib launcher that
+    is loky's ``"loky"``, unknown to a plain Python child, which then dies before running a trial.
+    """
+    method = mp.get_start_method(allow_none=True)
+    if method is not None and method not in ("fork", "spawn", "forkserver"):
+        mp.set_start_method("spawn", force=True)
+
+
 class WorkerPool:
     """Worker processes that each hold one task session.
 
@@ -186,6 +197,7 @@ class WorkerPool:
         self.task, self.policy = task, policy
         self.num_workers, self.max_retries = int(workers), int(max_retries)
         self.trial_timeout, self.startup_timeout = trial_timeout, startup_timeout
+        _reset_foreign_start_method()
         self.ctx = mp.get_context(start_method)
         self.threads = int(threads) if threads else None
         self.workers: list[_Worker] = []

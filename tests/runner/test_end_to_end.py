@@ -88,3 +88,13 @@ def test_multirun_goes_on_after_a_failing_job(tmp_path):
     report = subprocess.run([sys.executable, "-m", "grt.report", str(tmp_path)], cwd=ROOT,
                             capture_output=True, text=True, check=True).stdout
     assert "Final Drop" in report and "can" in report and "1 failed job" in report
+
+
+def test_multirun_with_the_joblib_launcher(tmp_path):
+    # loky installs its own start method; the evaluator's spawned workers must still start
+    proc = _cli(["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", *FAST, "budget.workers=1",
+                 "selector=heuristic,all", f"hydra.sweep.dir={tmp_path}"])
+    out, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 0, out
+    assert not list(tmp_path.rglob("error.txt")), out
+    assert len(list(tmp_path.rglob("summary.json"))) == 2
