@@ -129,7 +129,8 @@ def bench_pool(make, task: dict, policy: dict, nominal, candidates, trials: int,
         for k, v in r.outcomes.items():
             modes[k] = modes.get(k, 0) + v
     sim_s = [t.info.get("sim_s") for r in results for t in r.trials]
-    return {"trials_per_s": round(done / wall, 4), "pool_trials": done, "pool_wall_s": round(wall, 2),
+    policy_s = sum(t.info.get("capture_s", 0.0) + t.info.get("plan_s", 0.0) for r in results for t in r.trials)
+    return {"pool_policy_s": round(policy_s, 2), "trials_per_s": round(done / wall, 4), "pool_trials": done, "pool_wall_s": round(wall, 2),
             "startup_s": round(startup, 1), "workers": workers, "outcomes": modes,
             "success_rates": [round(r.success_rate, 3) for r in results],
             "pool_sim_s": round(sum(sim_s), 2) if None not in sim_s else None}
@@ -170,7 +171,11 @@ def main(argv: list[str] | None = None) -> None:
                           args.trials, args.workers))
     # Core-seconds stepping the simulator: as the session timed them, else steps at the raw rate.
     raw_core_s = out["pool_sim_s"] or out["pool_trials"] * out["steps_per_trial"] / out["raw_sim_steps_per_s"]
-    out["overhead_frac"] = round((args.workers * out["pool_wall_s"] - raw_core_s) / raw_core_s, 3)
+    # The policy's own time (depth capture for its point cloud, grasp planning) is the black box under
+    # test, not framework: overhead_frac counts only what GRT adds (pool, IPC, reconfigure, resets).
+    core_s = args.workers * out["pool_wall_s"]
+    out["overhead_frac"] = round((core_s - raw_core_s - out["pool_policy_s"]) / raw_core_s, 3)
+    out["overhead_frac_incl_policy"] = round((core_s - raw_core_s) / raw_core_s, 3)
     out["pool_speedup"] = round(out["trials_per_s"] / out["inproc_trials_per_s"], 3)
     print(json.dumps(out))
 
