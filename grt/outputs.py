@@ -85,6 +85,8 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     if result.s0 == 0:
         summary["note"] = "S0 = 0: the policy already fails on the nominal object; relative drops are undefined"
     summary["crashshapes"] = save_crashshapes(run_dir, best, deformer, evaluator)
+    # The handle/anchor sets travel with the shapes (indices into every CrashShape's vertices).
+    (run_dir / "crashshapes" / "handles.json").write_text(handle_set.to_json())
     title = f"{summary['task']} / {summary['object']} / {summary['selector']}-{summary['optimizer']}"
     plot_curve(result.s0, result.iteration_scores, run_dir / "curve.png", title=title)
     shapes = [(deformer.meshes(np.asarray(r["theta"])[None])[0], f"it {r['iteration']}: score {r['score']:.2f}")
