@@ -7,6 +7,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from omegaconf import DictConfig
 
 from grt import metrics
@@ -45,15 +46,11 @@ def save_crashshapes(run_dir: Path, best: list[dict], deformer, evaluator) -> li
         entry = {"rank": rank, "file": f"crashshapes/{stem}.stl", "score": rec["score"],
                  "iteration": rec["iteration"], "candidate": rec["candidate"],
                  "watertight": bool(mesh.is_watertight), "smoothness_m": rec.get("smoothness_m")}
-        parts_fn = getattr(evaluator, "collision_parts", None)
-        if parts_fn is not None:
-            parts_dir = out / f"{stem}_parts"
-            parts_dir.mkdir(exist_ok=True)
-            import trimesh
-
-            for j, verts in enumerate(parts_fn(mesh)):
-                trimesh.convex.convex_hull(verts).export(parts_dir / f"part{j:02d}.obj")
-            entry["parts"] = f"crashshapes/{stem}_parts"
+        parts_dir = out / f"{stem}_parts"
+        parts_dir.mkdir(exist_ok=True)
+        for j, verts in enumerate(evaluator.collision_parts(mesh)):
+            trimesh.convex.convex_hull(verts).export(parts_dir / f"part{j:02d}.obj")
+        entry["parts"] = f"crashshapes/{stem}_parts"
         saved.append(entry)
     return saved
 
@@ -69,7 +66,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     best = crash_records(records, cfg.budget.top_k)
     summary = {
         "task": cfg.task.name, "object": object_name(cfg.object), "object_spec": str(cfg.object),
-        "selector": _choice("selector"), "optimizer": _choice("optimizer"),
+        "selector": _choice(cfg, "selector"), "optimizer": _choice(cfg, "optimizer"),
         "s0": result.s0, "s0_ci95": nominal.get("ci95"),
         "best_score": best[0]["score"] if best else None, "best_ci95": best[0].get("ci95") if best else None,
         **summ,
@@ -96,12 +93,14 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     return summary
 
 
-def _choice(group: str) -> str:
+def _choice(cfg: DictConfig, group: str) -> str:
+    """The group option of the run (``heuristic``, ``topdm``...); without Hydra (a test calling
+    ``run(cfg)``) it is read from the ``_target_`` module, whose name is the option's by convention."""
     from hydra.core.hydra_config import HydraConfig
 
     if HydraConfig.initialized():
         return str(HydraConfig.get().runtime.choices.get(group))
-    return "?"
+    return str(cfg[group]["_target_"]).rsplit(".", 2)[-2]
 
 
 def print_summary(summary: dict, run_dir: Path) -> None:

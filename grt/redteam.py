@@ -77,6 +77,10 @@ class RedTeamLoop:
 
     def run(self) -> RedTeamResult:
         """Evaluate the nominal object, then ``T`` iterations of Algorithm 1."""
+        for rec in self.journal.records:
+            if [tr["seed"] for tr in rec["trials"]] != self.seeds:
+                self._mismatch(rec["iteration"], rec["candidate"], "its episode seeds differ (budget.trials "
+                               "or budget.seed changed)")
         s0 = self._nominal_score()
         if not np.isfinite(s0):
             raise RuntimeError("every trial on the nominal object ended in sim_error: the task cannot be "
@@ -100,23 +104,27 @@ class RedTeamLoop:
 
     # ---------------------------------------------------------------------------------------------
     def _nominal_score(self) -> float:
+        mesh = self.deformer.mesh
         rec = self.journal.get(0, 0)
         if rec is None:
-            zero = np.zeros((self.deformer.handles.size, 3))
-            rec = self._evaluate(0, 0, zero, self.deformer.mesh)
+            rec = self._evaluate(0, 0, np.zeros((self.deformer.handles.size, 3)), mesh)
+        elif rec["mesh_hash"] != mesh_hash(mesh.vertices, mesh.faces):
+            self._mismatch(0, 0, "the nominal object differs (object= changed)")
         return float(rec["score"])
 
     def _candidate_score(self, t: int, i: int, theta: np.ndarray) -> float:
         rec = self.journal.get(t, i)
         if rec is not None:
             if not np.allclose(np.asarray(rec["theta"]), theta, rtol=1e-9, atol=1e-12):
-                raise JournalError(
-                    f"{self.journal.path}: iteration {t} candidate {i} in the journal was made with other "
-                    "parameters than this run's config (optimizer, seed, handles or budget changed). "
-                    "Resume with the run's own config (its .hydra/config.yaml) or start a new run.")
+                self._mismatch(t, i, "its parameters differ (optimizer, seed, handles or budget changed)")
             return float(rec["score"])
         mesh = self.deformer.meshes(theta[None])[0]
         return float(self._evaluate(t, i, theta, mesh)["score"])
+
+    def _mismatch(self, t: int, i: int, why: str) -> None:
+        raise JournalError(f"{self.journal.path}: iteration {t} candidate {i} of the journal was not made by this "
+                           f"run's config: {why}. Resume with the run's own config (its .hydra/config.yaml) "
+                           "or start a new run.")
 
     def _evaluate(self, t: int, i: int, theta: np.ndarray, mesh: trimesh.Trimesh) -> dict:
         start = time.perf_counter()

@@ -28,19 +28,27 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 import grt.config  # noqa: F401  (registers schemas and resolvers before composition)
+from grt.eval.collision import CollisionError
 from grt.geometry.deform import ShapeDeformer
-from grt.geometry.mesh import load_mesh
-from grt.journal import Journal
+from grt.geometry.mesh import MeshError, load_mesh
+from grt.journal import Journal, JournalError
+from grt.objects import UnknownObjectError
 from grt.outputs import print_summary, write_outputs
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.selectors.base import HandleSet
+from grt.selectors.client import VLMError
 
 log = logging.getLogger("grt.run")
+# Errors in what the user gave (object, mesh, journal, VLM settings): their message says the fix.
+USER_ERRORS = (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError)
 
 
 def run(cfg: DictConfig) -> dict:
     """Run (or resume) one red-team run; returns its summary (also written to ``summary.json``)."""
     run_dir = Path(cfg.resume or cfg.paths.output_dir)
+    if cfg.resume and not (run_dir / "journal.jsonl").exists():
+        raise JournalError(f"resume={cfg.resume}: no journal.jsonl there, so nothing to resume. Give the "
+                           "folder of an earlier run (outputs/<task>/<object>/<selector>-<optimizer>/<time>).")
     run_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     mesh = load_mesh(cfg.object)
@@ -120,6 +128,9 @@ def main(cfg: DictConfig) -> float:
             log.error("job failed (%s: %s); details in %s; the sweep goes on",
                       type(exc).__name__, exc, out / "error.txt")
             return math.nan
+        if isinstance(exc, USER_ERRORS):
+            log.error("%s: %s", type(exc).__name__, exc)
+            raise SystemExit(2) from exc
         raise
     return float(summary["final_drop"])
 

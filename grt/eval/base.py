@@ -94,6 +94,10 @@ class Evaluator(ABC):
             One :class:`CandidateResult` per mesh, in order; its trials follow ``seeds``.
         """
 
+    @abstractmethod
+    def collision_parts(self, mesh: trimesh.Trimesh) -> list[np.ndarray]:
+        """The convex parts ``(K, 3)`` (meters) the simulator uses for ``mesh`` (saved with CrashShapes)."""
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release workers and simulators."""
 

@@ -99,6 +99,10 @@ class SimEvaluator(Evaluator):
                                             {"collision": self.collision_kind, "parts": len(parts[i])})
                 for i, t in enumerate(trials)]
 
+    def collision_parts(self, mesh: trimesh.Trimesh) -> list[np.ndarray]:
+        """The convex parts this evaluator simulates ``mesh`` with (cached, so cheap after evaluate)."""
+        return self.collision.parts(mesh)
+
     def close(self) -> None:
         """Stop the worker processes."""
         self.pool.close()

@@ -41,6 +41,8 @@ def test_smoke_run_writes_every_artifact(tmp_path):
     assert len(shapes) == cfg.budget.top_k and all(s["watertight"] for s in shapes)
     assert (tmp_path / shapes[0]["file"]).exists()
     assert (tmp_path / "crashshapes" / "handles.json").exists()
+    assert list((tmp_path / shapes[0]["parts"]).glob("part*.obj")), "convex parts not saved"
+    assert summary["selector"] == "heuristic" and summary["optimizer"] == "topdm"
     rec = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[1])
     assert {"theta", "score", "trials", "outcomes", "smoothness_m", "entropy", "mesh_hash"} <= set(rec)
     assert len(rec["trials"]) == cfg.budget.trials
