@@ -32,6 +32,7 @@ class Journal:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.records: list[dict] = []
+        self._index: dict[tuple[int, int], dict] = {}
         self.recovered_truncated_line = False
         if self.path.exists():
             self._load()
@@ -52,7 +53,7 @@ class Journal:
             missing = [k for k in self.REQUIRED if k not in rec]
             if missing:
                 raise JournalError(f"{self.path}: line {n} lacks {missing}; not a GRT journal record.")
-            self.records.append(rec)
+            self._add(rec)
         if tail.strip():
             # An interrupted write: the candidate was not finished. Cut it so appends stay valid.
             self.recovered_truncated_line = True
@@ -69,14 +70,15 @@ class Journal:
             f.write(line)
             f.flush()
             os.fsync(f.fileno())
+        self._add(record)
+
+    def _add(self, record: dict) -> None:
         self.records.append(record)
+        self._index[(record["iteration"], record["candidate"])] = record
 
     def get(self, iteration: int, candidate: int) -> dict | None:
         """The record of one candidate, or ``None`` if it was not evaluated yet."""
-        for rec in self.records:
-            if rec["iteration"] == iteration and rec["candidate"] == candidate:
-                return rec
-        return None
+        return self._index.get((iteration, candidate))
 
     def iteration(self, iteration: int) -> dict[int, dict]:
         """``{candidate: record}`` of one iteration."""

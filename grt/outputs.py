@@ -33,13 +33,12 @@ def crash_records(records: list[dict], k: int) -> list[dict]:
     return sorted(explored, key=lambda r: (r["score"], r["iteration"], r["candidate"]))[:k]
 
 
-def save_crashshapes(run_dir: Path, best: list[dict], deformer, evaluator) -> list[dict]:
-    """Write each CrashShape in meters (watertight STL + OBJ, convex parts when the evaluator has them)."""
+def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], evaluator) -> list[dict]:
+    """Write each CrashShape in meters (watertight STL + OBJ, and the convex parts it was simulated with)."""
     out = run_dir / "crashshapes"
     out.mkdir(exist_ok=True)
     saved = []
-    for rank, rec in enumerate(best, start=1):
-        mesh = deformer.meshes(np.asarray(rec["theta"])[None])[0]
+    for rank, (rec, mesh) in enumerate(zip(best, meshes, strict=True), start=1):
         stem = f"rank{rank}_it{rec['iteration']}_c{rec['candidate']}"
         mesh.export(out / f"{stem}.stl")
         mesh.export(out / f"{stem}.obj")
@@ -81,13 +80,13 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     }
     if result.s0 == 0:
         summary["note"] = "S0 = 0: the policy already fails on the nominal object; relative drops are undefined"
-    summary["crashshapes"] = save_crashshapes(run_dir, best, deformer, evaluator)
+    meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
+    summary["crashshapes"] = save_crashshapes(run_dir, best, meshes, evaluator)
     # The handle/anchor sets travel with the shapes (indices into every CrashShape's vertices).
     (run_dir / "crashshapes" / "handles.json").write_text(handle_set.to_json())
     title = f"{summary['task']} / {summary['object']} / {summary['selector']}-{summary['optimizer']}"
     plot_curve(result.s0, result.iteration_scores, run_dir / "curve.png", title=title)
-    shapes = [(deformer.meshes(np.asarray(r["theta"])[None])[0], f"it {r['iteration']}: score {r['score']:.2f}")
-              for r in best]
+    shapes = [(m, f"it {r['iteration']}: score {r['score']:.2f}") for r, m in zip(best, meshes, strict=True)]
     plot_shapes(deformer.mesh, shapes, run_dir / "shapes.png", handles=handle_set.handles)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
     return summary

@@ -9,7 +9,6 @@ evaluated again (its stored theta must match the replayed one, which catches a c
 from __future__ import annotations
 
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -19,7 +18,6 @@ import trimesh
 
 from grt.geometry.mesh import mesh_hash
 from grt.journal import Journal, JournalError
-from grt.metrics import mean_interval, wilson_interval
 from grt.optimizers.base import Optimizer
 from grt.optimizers.budget import project_to_budget, smoothness_score
 
@@ -58,20 +56,19 @@ class RedTeamLoop:
         seeds: episode seeds shared by every candidate.
         iterations: ``T``.
         tau: Smoothness-Score budget in meters (``None``: off).
-        binary: the score is a success rate (Wilson intervals) rather than a continuous metric.
         complexity: ``mesh -> angular-deficit entropy`` (stored per candidate for ΔComplexity).
         on_candidate: called with each new record (progress bars, loggers).
         on_iteration: called with ``(t, scores)`` after each iteration.
     """
 
     def __init__(self, deformer: ShapeDeformer, optimizer: Optimizer, evaluator: Evaluator, journal: Journal,
-                 seeds: list[int], iterations: int, tau: float | None = None, binary: bool = True,
+                 seeds: list[int], iterations: int, tau: float | None = None,
                  complexity: Callable[[trimesh.Trimesh], float] | None = None,
                  on_candidate: Callable[[dict], None] | None = None,
                  on_iteration: Callable[[int, list[float]], None] | None = None):
         self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
         self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
-        self.tau, self.binary, self.complexity = tau, binary, complexity
+        self.tau, self.complexity = tau, complexity
         self.on_candidate, self.on_iteration = on_candidate, on_iteration
         self.evaluations = 0
 
@@ -133,12 +130,9 @@ class RedTeamLoop:
         trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode,
                    **({"error": str(o.info["error"])[:500]} if o.info.get("error") else {})}
                   for o in result.trials]
-        scores = [o["score"] for o in trials]
-        ci = (wilson_interval(sum(o["success"] for o in trials), len(trials)) if self.binary
-              else mean_interval(scores))
         rec = {
             "iteration": t, "candidate": i, "score": float(result.score),
-            "ci95": list(ci), "outcomes": dict(Counter(o["mode"] for o in trials)),
+            "ci95": list(result.ci95()), "outcomes": result.outcomes,
             "theta": np.asarray(theta).tolist(),
             "smoothness_m": float(smoothness_score(theta, self.deformer.meters_per_unit)),
             "entropy": float(self.complexity(mesh)) if self.complexity else None,

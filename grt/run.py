@@ -71,7 +71,7 @@ def run(cfg: DictConfig) -> dict:
         logger.start(run_dir, name=run_dir.name, config=_plain(cfg))
         loop = RedTeamLoop(
             deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
-            binary=cfg.task.score == "success", complexity=_entropy,
+            complexity=_entropy,
             on_candidate=lambda rec: _progress(bar, rec),
             on_iteration=lambda t, scores: logger.log_iteration(t, {"best_score": optimizer.best_score,
                                                                     "mean_score": float(np.mean(scores))}))
