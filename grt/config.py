@@ -51,6 +51,9 @@ def register() -> None:
     cs.store(group="budget", name="schema", node=BudgetSchema)
     if not OmegaConf.has_resolver("object_name"):
         OmegaConf.register_new_resolver("object_name", object_name)
+    if not OmegaConf.has_resolver("grt_dir"):
+        # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
+        OmegaConf.register_new_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
     if not OmegaConf.has_resolver("resume_or"):
         # hydra.run.dir: continue in the resumed run's own folder instead of creating a new one
         OmegaConf.register_new_resolver("resume_or", lambda resume, default: resume or default)

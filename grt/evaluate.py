@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -20,7 +19,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 import grt.config  # noqa: F401 - registers the config schemas and resolvers
-from grt.geometry.mesh import MeshError, load_mesh, mesh_hash
+from grt.geometry.mesh import load_mesh, mesh_hash
 from grt.redteam import episode_seeds
 
 log = logging.getLogger(__name__)
@@ -33,7 +32,10 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
         grt.objects.UnknownObjectError: neither a built-in object nor an existing file.
         MeshError: an unreadable or unusable mesh file.
     """
+    from grt.tasks import preflight
+
     mesh = load_mesh(cfg.object)
+    preflight(_plain(cfg.task), instantiate(cfg.policy), mesh)
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None
@@ -73,13 +75,10 @@ def main(cfg: DictConfig) -> float:
     """Hydra entry point; returns the success rate."""
     from hydra.core.hydra_config import HydraConfig
 
-    from grt.objects import UnknownObjectError
+    from grt.errors import exit_on_user_error
 
-    try:
+    with exit_on_user_error():
         summary = evaluate(cfg, HydraConfig.get().runtime.output_dir)
-    except (UnknownObjectError, MeshError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        sys.exit(2)
     _print_figures(summary)
     print(json.dumps(summary))
     return float(summary["success_rate"])

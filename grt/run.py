@@ -28,19 +28,16 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 import grt.config  # noqa: F401  (registers schemas and resolvers before composition)
-from grt.eval.collision import CollisionError
+from grt.errors import find_user_error
 from grt.geometry.deform import ShapeDeformer
-from grt.geometry.mesh import MeshError, load_mesh
+from grt.geometry.mesh import load_mesh
 from grt.journal import Journal, JournalError
-from grt.objects import UnknownObjectError
 from grt.outputs import print_summary, write_outputs
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.selectors.base import HandleSet
-from grt.selectors.client import VLMError
+from grt.tasks import preflight
 
 log = logging.getLogger("grt.run")
-# Errors in what the user gave (object, mesh, journal, VLM settings): their message says the fix.
-USER_ERRORS = (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError)
 
 
 def run(cfg: DictConfig) -> dict:
@@ -52,6 +49,7 @@ def run(cfg: DictConfig) -> dict:
     run_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     mesh = load_mesh(cfg.object)
+    preflight(_plain(cfg.task), instantiate(cfg.policy), mesh)  # wrong plug/checkpoint: refused before any file
     handle_set = _select_handles(cfg, mesh, run_dir)
     deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, lam=cfg.deformer.lam,
                              method=cfg.deformer.method)
@@ -128,8 +126,9 @@ def main(cfg: DictConfig) -> float:
             log.error("job failed (%s: %s); details in %s; the sweep goes on",
                       type(exc).__name__, exc, out / "error.txt")
             return math.nan
-        if isinstance(exc, USER_ERRORS):
-            log.error("%s: %s", type(exc).__name__, exc)
+        found = find_user_error(exc)
+        if found is not None:
+            log.error("%s: %s", type(found).__name__, found)
             raise SystemExit(2) from exc
         raise
     return float(summary["final_drop"])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-BENCHMARKS = ("deform", "grasp")
+BENCHMARKS = ("deform", "grasp", "insertion")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -19,7 +19,7 @@ import functools
 import numpy as np
 import trimesh
 
-from grt.objects.catalog import BUILDERS, DESCRIPTIONS
+from grt.objects.catalog import BUILDERS, DESCRIPTIONS, INSERTION
 from grt.objects.shapes import clean_slivers, to_trimesh
 
 __all__ = ["UnknownObjectError", "get_object", "list_objects", "object_info", "object_regions"]
@@ -80,10 +80,14 @@ def object_regions(name: str) -> dict[str, np.ndarray]:
 
 
 def object_info(name: str) -> dict:
-    """Facts about a built-in object: ``description`` (used in prompts), ``regions`` (names).
+    """Facts about a built-in object: ``description`` (used in prompts), ``regions`` (names), and for
+    plugs ``insertion`` (``head_length``, ``grip_height`` in meters).
 
     Raises:
         UnknownObjectError: ``name`` is not built in.
     """
     _check(name)
-    return {"description": DESCRIPTIONS[name], "regions": sorted(_build(name)[1])}
+    info = {"description": DESCRIPTIONS[name], "regions": sorted(_build(name)[1])}
+    if name in INSERTION:
+        info["insertion"] = dict(INSERTION[name])
+    return info

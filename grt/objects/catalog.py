@@ -166,6 +166,29 @@ def plug():
     return body + head, regions
 
 
+def usb_plug():
+    # A USB-A-like plug standing on its connector for insertion: a flat metal head (12 x 4.5 x 12 mm)
+    # under a grip body (18 x 10.5 x 30 mm) that the fingers pinch across y. Grid lines coincide at the
+    # joint (1.5 mm spacing) so the Boolean union adds no sliver triangles.
+    head = grid_box((-0.006, -0.00225, 0.0), (0.006, 0.00225, 0.012), 0.0015)
+    grip = grid_box((-0.009, -0.00525, 0.012), (0.009, 0.00525, 0.042), 0.0015)
+    # (regions get 1 mm of padding: they stay disjoint, the shoulder plane z = 12 mm in neither)
+    regions = {"head": _box((-0.0065, -0.0028, -0.0005), (0.0065, 0.0028, 0.0105)),
+               "grip": _box((-0.0095, -0.0058, 0.0135), (0.0095, 0.0058, 0.0425))}
+    return head + grip, regions
+
+
+def round_peg():
+    # A round peg standing on its pin for insertion: a 10 mm pin, 12 mm long, under a 16 mm grip
+    # cylinder 30 mm tall with rounded top edges.
+    rp, lp, rg, hg = 0.005, 0.012, 0.008, 0.042
+    prof = _cat((0, 0), (rp, 0), (rp, lp), (rg, lp), arc((rg - 0.002, hg - 0.002), 0.002, 0, PI / 2, n=8), (0, hg))
+    solid = revolve(prof, segments=40, min_spacing=0.0012)
+    regions = {"head": _box((-rp - 0.0005, -rp - 0.0005, -0.0005), (rp + 0.0005, rp + 0.0005, lp - 0.0015)),
+               "grip": _box((-rg - 0.0005, -rg - 0.0005, lp + 0.0015), (rg + 0.0005, rg + 0.0005, hg + 0.0005))}
+    return solid, regions
+
+
 def drawer_handle():
     # Bar handle standing on its two posts (the drawer front is the plane z = 0).
     span, rb, rp, hp = 0.096, 0.006, 0.005, 0.032  # post spacing, bar/post radius, post height
@@ -181,7 +204,15 @@ def drawer_handle():
 
 
 BUILDERS = {f.__name__: f for f in (mug, bottle, bowl, can, cup, screwdriver, hammer, sugar_box,
-                                    spray_bottle, banana, plug, drawer_handle)}
+                                    spray_bottle, banana, plug, drawer_handle, usb_plug,
+                                    round_peg)}
+
+# Plugs for the insertion task: connector length (m, from the tip at z = 0) and the height (m) of the
+# point between the fingertips in the nominal grip.
+INSERTION = {
+    "usb_plug": {"head_length": 0.012, "grip_height": 0.030},
+    "round_peg": {"head_length": 0.012, "grip_height": 0.030},
+}
 
 DESCRIPTIONS = {
     "mug": "a ceramic coffee mug with a round handle, about 8 cm wide and 10 cm tall",
@@ -195,5 +226,7 @@ DESCRIPTIONS = {
     "spray_bottle": "a spray bottle with a trigger and a nozzle on top of a round body",
     "banana": "a banana lying on the table, a curved elongated fruit",
     "plug": "a USB-like plug lying on the table: a grip body and a flat metal head to insert",
+    "usb_plug": "a USB-like plug held upright for insertion: a flat metal connector head below a grip body",
+    "round_peg": "a round peg held upright for insertion: a cylindrical pin below a wider cylindrical grip",
     "drawer_handle": "a bar-shaped drawer handle on two posts, mounted on a drawer front",
 }

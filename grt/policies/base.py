@@ -66,6 +66,24 @@ class GraspObservation:
     table_z: float = 0.0
 
 
+class Policy(ABC):
+    """A black-box closed-loop policy behind one small batched interface.
+
+    The task owns the observation adapter: it hands the policy a dict of named observation groups,
+    each batched along the first axis (``(N, ...)``), and applies the returned actions ``(N, A)`` in
+    [-1, 1]. The same class serves every task whose observations it understands: an rsl-rl
+    checkpoint (:class:`grt.policies.rsl_rl.RslRlPolicy`) for insertion or the drawer, or a user's
+    class with these two methods.
+    """
+
+    def reset(self, seed: int) -> None:  # noqa: B027 - optional hook
+        """Start a new episode (recurrent state, per-episode randomness seeded by ``seed``)."""
+
+    @abstractmethod
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """Actions ``(N, A)`` for a batch of observations ``{group: (N, ...)}``."""
+
+
 class GraspPredictor(ABC):
     """A point-cloud grasp predictor (one inference)."""
 

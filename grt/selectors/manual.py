@@ -26,8 +26,9 @@ class ManualSelector(HandleSelector):
     Handles are the union of ``handles`` and the vertices inside ``handle_regions``; anchors the
     union of ``anchors`` and the vertices inside ``anchor_regions``. When no anchors are given at all,
     the anchors are the ``far_anchors`` vertices farthest from the handles (farthest-point sampling).
-    A region with more than ``max_per_region`` vertices is thinned by farthest-point sampling
-    (a whole mug handle is hundreds of vertices; each handle adds three search dimensions).
+    A handle region with more than ``max_per_region`` vertices is thinned by farthest-point sampling
+    (a whole mug handle is hundreds of vertices; each handle adds three search dimensions); anchor
+    regions are taken whole.
 
     Args:
         handles: handle vertex indices.
@@ -62,13 +63,13 @@ class ManualSelector(HandleSelector):
         self.far_anchors = max(int(far_anchors), MIN_ANCHORS)
         self.max_per_region = max_per_region
 
-    def _regions(self, vertices: np.ndarray, specs: list) -> np.ndarray:
+    def _regions(self, vertices: np.ndarray, specs: list, thin: bool = True) -> np.ndarray:
         picked = []
         for spec in specs:
             idx = region_vertices(vertices, [spec])
             if len(idx) == 0:
                 raise ValueError(f"region {spec!r} contains no vertex of the mesh (check its units: meters)")
-            if self.max_per_region is not None and len(idx) > self.max_per_region:
+            if thin and self.max_per_region is not None and len(idx) > self.max_per_region:
                 local = farthest_vertices(vertices[idx], [int(np.argmin(idx))], self.max_per_region, [])
                 idx = idx[local]
             picked.append(idx)
@@ -83,7 +84,7 @@ class ManualSelector(HandleSelector):
             raise ValueError("manual selector: no handles; set selector.handles or selector.handle_regions "
                              "(or selector.file)")
         anchors = np.unique(np.concatenate([np.asarray(self.spec["anchors"], np.int64),
-                                            self._regions(vertices, self.spec["anchor_regions"])]))
+                                            self._regions(vertices, self.spec["anchor_regions"], thin=False)]))
         source = "given"
         if len(anchors) == 0:
             anchors = np.sort(farthest_vertices(vertices, handles, self.far_anchors, handles))

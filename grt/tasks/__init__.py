@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import importlib
 
-from grt.tasks.base import FAILURE_MODES, TaskSession, TrialOutcome
+from grt.tasks.base import FAILURE_MODES, EpisodeSession, TaskSession, TrialOutcome
 
 TASKS: dict[str, str] = {
     "grasp": "grt.tasks.grasp.GraspSession",
+    "insertion": "grt.tasks.insertion.InsertionSession",
 }
 
 
@@ -28,4 +29,24 @@ def get_task(name: str) -> type[TaskSession]:
     return getattr(importlib.import_module(module), cls)
 
 
-__all__ = ["FAILURE_MODES", "TASKS", "TaskSession", "TrialOutcome", "get_task"]
+def preflight(task: dict, policy, mesh) -> None:
+    """Refuse, before any simulation, an object the task cannot use or a policy made for another task.
+
+    Args:
+        task: the task config as a plain dict (``name``, ``session``).
+        policy: the instantiated policy; checked when it has ``check(task, obs_spec, num_actions)``.
+        mesh: the nominal object (meters).
+
+    Raises:
+        grt.policies.rsl_rl.CheckpointError: a policy for another task/observation, naming both sides.
+        grt.tasks.socket.PlugFitError (or the task's own error): an object the task cannot use.
+    """
+    session = get_task(task["name"])
+    session.check_object(mesh, **{k: v for k, v in task["session"].items() if k != "_target_"})
+    check = getattr(policy, "check", None)
+    if check is not None:
+        spec = session.observation_spec(**{k: v for k, v in task["session"].items() if k == "cloud_points"})
+        check(task["name"], spec, session.num_actions)
+
+
+__all__ = ["FAILURE_MODES", "TASKS", "EpisodeSession", "TaskSession", "TrialOutcome", "get_task", "preflight"]

@@ -32,6 +32,11 @@ FAILURE_MODES = (
     "dropped_lift",
     "dropped_shake",
     "sim_error",
+    # closed-loop tasks (insertion, drawer)
+    "jammed",
+    "misaligned",
+    "dropped",
+    "timeout",
 )
 
 
@@ -68,6 +73,20 @@ class TaskSession(ABC):
     #: Name of the task metric; ``success`` means binary (score = float(success)).
     score_name: str = "success"
 
+    #: observation groups this task produces (name -> shape without the batch dimension).
+    obs_spec: dict[str, tuple[int, ...]] = {}
+    num_actions: int = 0
+
+    @classmethod
+    def check_object(cls, mesh: trimesh.Trimesh, **session_kwargs) -> None:
+        """Raise a user error (message naming the fix) if this task cannot use ``mesh`` at all."""
+        return None
+
+    @classmethod
+    def observation_spec(cls, **session_kwargs) -> dict[str, tuple[int, ...]]:
+        """The observation groups a session built with these arguments produces (no simulator needed)."""
+        return dict(cls.obs_spec)
+
     @abstractmethod
     def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
         """Rebuild the scene around a new object.
@@ -92,3 +111,98 @@ class TaskSession(ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class EpisodeSession(TaskSession):
+    """A task whose policy acts every control step: one session serves evaluation *and* learning.
+
+    The same methods drive a red-team trial (:meth:`run_trial`) and a reinforcement-learning worker
+    (:meth:`reset` / :meth:`step`, used by :class:`grt.rl.vec_env.TaskVecEnv`), so a policy is trained
+    and red-teamed in the very same environment. Subclasses build the ManiSkill env and implement
+    :meth:`observe`, :meth:`judge` and :meth:`load_object`.
+
+    Args:
+        policy: a :class:`grt.policies.base.Policy` (``None`` in a learning worker).
+        max_steps: control steps per episode (the episode ends earlier at success).
+        rebuild_each_trial: rebuild the scene before every evaluation trial (~30 ms), so that an
+            outcome depends only on (object, seed), whatever ran before in this process.
+    """
+
+    #: the task's name (``conf/task/<name>.yaml``), checked against a learned policy's training task.
+    task_name: str = ""
+
+    def __init__(self, policy=None, max_steps: int = 256, rebuild_each_trial: bool = True):
+        self.policy, self.max_steps, self.rebuild_each_trial = policy, int(max_steps), bool(rebuild_each_trial)
+        self.steps = 0
+
+    def _check_policy(self) -> None:
+        """Refuse a policy that declares a different task or observation (see :func:`grt.tasks.check_policy`)."""
+        check = getattr(self.policy, "check", None)
+        if check is not None:
+            check(self.task_name, self.obs_spec, self.num_actions)
+
+    # --- what a subclass provides --------------------------------------------------------------------
+    @abstractmethod
+    def _reset_env(self, seed: int, rebuild: bool) -> None:
+        """Reset the env with ``seed`` (rebuilding the scene when asked)."""
+
+    @abstractmethod
+    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
+        """Apply one action; returns ``(reward, success, info)``."""
+
+    @abstractmethod
+    def observe(self) -> dict[str, np.ndarray]:
+        """The policy's observation groups, unbatched (shapes as :attr:`obs_spec`)."""
+
+    @abstractmethod
+    def judge(self, success: bool, info: dict) -> str:
+        """The trial's mode (``success`` or a failure mode) from the final state."""
+
+    def score(self, success: bool, info: dict) -> float:
+        """The trial's score: ``float(success)`` for binary tasks; continuous tasks override."""
+        return float(success)
+
+    # --- learning interface --------------------------------------------------------------------------
+    def reset(self, seed: int, rebuild: bool = False) -> dict[str, np.ndarray]:
+        """Start an episode; returns the first observation."""
+        self._reset_env(int(seed), rebuild)
+        self.steps = 0
+        return self.observe()
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict]:
+        """One control step: ``(obs, reward, terminated, truncated, info)``; terminated = success."""
+        action = np.clip(np.asarray(action, np.float32).reshape(self.num_actions), -1.0, 1.0)
+        reward, success, info = self._step_env(action)
+        self.steps += 1
+        info["success"] = bool(success)
+        return self.observe(), float(reward), bool(success), self.steps >= self.max_steps, info
+
+    # --- evaluation protocol -------------------------------------------------------------------------
+    def run_trial(self, seed: int) -> TrialOutcome:
+        import time
+
+        start = time.perf_counter()
+        info: dict = {}
+        try:
+            obs = self.reset(seed, rebuild=self.rebuild_each_trial)
+            self.policy.reset(seed)
+            done, success = False, False
+            while not done:
+                action = self.policy.act({k: v[None] for k, v in obs.items()})[0]
+                obs, _, success, truncated, info = self.step(action)
+                self._check(info)
+                done = success or truncated
+            mode = self.judge(success, info)
+            score = self.score(success, info)
+        except Exception as err:  # physics failures must not pass silently
+            mode, score, success = "sim_error", 0.0, False
+            info = {"error": f"{type(err).__name__}: {err}"}
+        info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
+        info.update(steps=self.steps, wall_s=time.perf_counter() - start)
+        return TrialOutcome(seed=int(seed), score=float(score), success=mode == "success", mode=mode, info=info)
+
+    def _check(self, info: dict) -> None:
+        """Raise on a non-finite state (subclasses add runaway checks)."""
+        for k, v in info.items():
+            if isinstance(v, float) and not np.isfinite(v):
+                raise FloatingPointError(f"non-finite {k} in the simulation state")

@@ -1,0 +1,1 @@
+"""Learning for GRT tasks: rsl-rl's VecEnv over task sessions, PPO training, point-cloud models."""

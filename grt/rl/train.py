@@ -1,0 +1,266 @@
+"""PPO training with rsl-rl's ``OnPolicyRunner`` on a :class:`~grt.rl.vec_env.TaskVecEnv`, resumable.
+
+:func:`train` runs the runner one iteration at a time so that it can (1) show a progress bar,
+(2) write ``metrics.csv`` (one row per iteration: reward, episode success rate, losses, seconds),
+(3) save a checkpoint with the GRT config inside every ``save_interval`` iterations (``last.pt``)
+and keep the best by training success rate (``best.pt``), (4) resume a killed run from ``last.pt``,
+and (5) stop early once a target success rate has held for ``patience`` iterations. The shipped policy
+file (:func:`export_policy`) drops the optimizer state so it stays small.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import logging
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import torch
+from rsl_rl.runners import OnPolicyRunner
+from tqdm.auto import tqdm
+
+from grt.rl.vec_env import TaskVecEnv
+
+log = logging.getLogger(__name__)
+FIELDS = ["iteration", "steps", "success_rate", "episodes", "mean_return", "episode_steps", "value_loss",
+          "surrogate_loss", "entropy", "action_std", "learning_rate", "collect_s", "learn_s"]
+
+
+def grt_config(task_name: str, env: TaskVecEnv, train_cfg: dict, task_cfg: dict, extra: dict | None = None) -> dict:
+    """The ``grt`` entry stored in a checkpoint (see :mod:`grt.policies.rsl_rl`)."""
+    return {"task": task_name, "obs_spec": {k: list(v) for k, v in env.obs_spec.items()},
+            "num_actions": env.num_actions, "train_cfg": copy.deepcopy(train_cfg), "task_cfg": task_cfg,
+            **(extra or {})}
+
+
+def _runner_cfg(train_cfg: dict) -> dict:
+    keys = ("num_steps_per_env", "obs_groups", "actor", "critic", "algorithm")
+    cfg = {k: copy.deepcopy(train_cfg[k]) for k in keys}
+    cfg.update(save_interval=10**9, check_for_nan=True)
+    return cfg
+
+
+def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str, task_cfg: dict,
+          iterations: int, init_checkpoint: str | None = None, save_interval: int = 10,
+          target_success: float | None = None, patience: int = 20, extra: dict | None = None,
+          on_iteration=None, expert=None, bc: dict | None = None) -> dict:
+    """Train (or resume) a PPO policy; returns ``{"iterations", "steps", "best_success", "wall_s", ...}``.
+
+    Args:
+        env: the vectorized task env.
+        train_cfg: rsl-rl runner config (``num_steps_per_env``, ``obs_groups``, ``actor``, ``critic``,
+            ``algorithm``).
+        out_dir: run folder (checkpoints, ``metrics.csv``); an existing ``last.pt`` there is resumed.
+        task_name, task_cfg: stored in every checkpoint.
+        iterations: PPO iterations in total (a resumed run continues up to this number).
+        init_checkpoint: start from this policy's weights (fine-tuning), unless resuming.
+        save_interval: iterations between ``last.pt`` saves.
+        target_success: stop early when the success rate over the last ``patience`` iterations'
+            episodes reaches it (``None``: never).
+        extra: more entries for the ``grt`` config.
+        on_iteration: called with each metrics row (e.g. a W&B logger).
+        expert: a policy to warm-start from by :func:`behavior_clone` (fresh runs only); ``bc`` its
+            keyword arguments (``steps``, ``epochs``, ``noise``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(int(train_cfg.get("seed", 0)))
+    runner = OnPolicyRunner(env, _runner_cfg(train_cfg), log_dir=None, device="cpu")
+    update = runner.alg.update
+
+    def update_and_keep_losses() -> dict:
+        runner._last_losses = update()
+        return runner._last_losses
+
+    runner.alg.update = update_and_keep_losses
+    cfg = grt_config(task_name, env, train_cfg, task_cfg, extra)
+    start_it, best = 0, -1.0
+    if (out / "last.pt").exists():
+        runner.load(str(out / "last.pt"))
+        state = torch.load(out / "last.pt", map_location="cpu", weights_only=False)
+        start_it, best = int(state["iter"]) + 1, float(state["grt"].get("best_success", -1.0))
+        log.info("resuming %s at iteration %d", out, start_it)
+    elif init_checkpoint:
+        runner.load(str(init_checkpoint), load_cfg={"actor": True, "critic": True}, strict=True)
+    elif expert is not None:
+        warm = behavior_clone(runner, env, expert, seed=int(train_cfg.get("seed", 0)), **(bc or {}))
+        log.info("behaviour-cloning warm start: %s", warm)
+        cfg["warm_start"] = warm
+        write_json(out / "warm_start.json", warm)
+    metrics_path = out / "metrics.csv"
+    rows = _read_rows(metrics_path, start_it)
+    recent: deque = deque(maxlen=max(1, patience))
+    steps_per_it = env.num_envs * int(train_cfg["num_steps_per_env"])
+    started = time.perf_counter()
+    bar = tqdm(total=iterations, initial=start_it, desc="ppo", unit="it", dynamic_ncols=True)
+    stopped_early = False
+    try:
+        for it in range(start_it, iterations):
+            before = len(env.episodes)
+            t0 = time.perf_counter()
+            runner.current_learning_iteration = it
+            runner.learn(1)
+            ended = env.episodes[before:]
+            row = _row(it, steps_per_it, ended, runner, time.perf_counter() - t0)
+            rows.append(row)
+            _write_rows(metrics_path, rows)
+            recent.append(ended)
+            window = [e["success"] for eps in recent for e in eps]
+            rate = float(np.mean(window)) if window else 0.0
+            bar.update(1)
+            bar.set_postfix(success=f"{rate:.2f}", ret=f"{row['mean_return']:.1f}")
+            if on_iteration:
+                on_iteration(row)
+            if window and rate > best and len(recent) == recent.maxlen:
+                best = rate
+                _save(runner, out / "best.pt", it, {**cfg, "best_success": best})
+            if (it + 1) % save_interval == 0 or it + 1 == iterations:
+                _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
+            if target_success is not None and len(recent) == recent.maxlen and rate >= target_success:
+                _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
+                stopped_early = True
+                break
+    finally:
+        bar.close()
+    final_it = rows[-1]["iteration"] if rows else start_it
+    return {"iterations": int(final_it) + 1, "steps": (int(final_it) + 1) * steps_per_it, "best_success": best,
+            "wall_s": time.perf_counter() - started, "stopped_early": stopped_early, "out_dir": str(out)}
+
+
+def behavior_clone(runner: OnPolicyRunner, env: TaskVecEnv, expert, steps: int, epochs: int = 50,
+                   noise: float = 0.1, gamma: float = 0.99, lr: float = 1e-3, seed: int = 0) -> dict:
+    """Warm-start the actor (and critic) on an expert's rollouts before PPO (as DAPG-style methods do).
+
+    The expert acts in ``env`` for ``steps`` steps per env, its actions perturbed by Gaussian ``noise``
+    so the data covers states off its path; the actor's mean is fitted to the expert's (unperturbed)
+    actions and the critic to the discounted returns of the rollouts. PPO then trains from there.
+
+    Returns:
+        ``{"bc_samples", "bc_action_mse", "bc_value_mse", "bc_expert_success"}``.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    obs_list, act_list, rew_list, done_list = [], [], [], []
+    before = len(env.episodes)
+    obs = env.get_observations()
+    for _ in range(steps):
+        act = torch.as_tensor(expert.act({k: obs[k].numpy() for k in obs.keys()}), dtype=torch.float32)
+        obs_list.append(obs.clone())
+        act_list.append(act)
+        noisy = (act + noise * torch.randn(act.shape, generator=gen)).clamp(-1.0, 1.0)
+        obs, rew, dones, extras = env.step(noisy)
+        rew_list.append(rew.float())
+        done_list.append((dones > 0) & ~extras["time_outs"].bool())
+    returns, running = [], torch.zeros(env.num_envs)
+    for rew, done in zip(reversed(rew_list), reversed(done_list), strict=True):
+        running = rew + gamma * running * (~done).float()
+        returns.append(running)
+    returns = torch.stack(returns[::-1]).reshape(-1, 1)
+    data = torch.stack(obs_list).reshape(-1)  # TensorDict of steps x envs, flattened
+    actions = torch.stack(act_list).reshape(-1, env.num_actions)
+    actor, critic = runner.alg.get_policy(), runner.alg.critic
+    actor.update_normalization(data)
+    critic.update_normalization(data)
+    params = [p for n, p in actor.named_parameters() if "std" not in n] + list(critic.parameters())
+    optim = torch.optim.Adam(params, lr=lr)
+    n, batch = len(actions), 256
+    for _ in range(epochs):
+        for idx in torch.randperm(n, generator=gen).split(batch):
+            loss_a = ((actor(data[idx]) - actions[idx]) ** 2).mean()
+            loss_v = ((critic(data[idx]) - returns[idx]) ** 2).mean()
+            optim.zero_grad()
+            (loss_a + 0.1 * loss_v).backward()
+            optim.step()
+    with torch.no_grad():
+        mse_a = float(((actor(data) - actions) ** 2).mean())
+        mse_v = float(((critic(data) - returns) ** 2).mean())
+    ended = env.episodes[before:]
+    return {"bc_samples": n, "bc_action_mse": mse_a, "bc_value_mse": mse_v,
+            "bc_expert_success": float(np.mean([e["success"] for e in ended])) if ended else float("nan")}
+
+
+def export_policy(checkpoint: str | Path, dest: str | Path, metrics: dict | None = None) -> Path:
+    """Write a small policy file (actor, critic, normalizers, config; no optimizer state)."""
+    state = torch.load(checkpoint, map_location="cpu", weights_only=False)
+    small = {k: v for k, v in state.items() if k not in ("optimizer_state_dict",)}
+    if metrics:
+        small["grt"] = {**small["grt"], "metrics": metrics}
+    dest = Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_suffix(".tmp")
+    torch.save(small, tmp)
+    tmp.replace(dest)
+    return dest
+
+
+def _save(runner: OnPolicyRunner, path: Path, it: int, cfg: dict) -> None:
+    state = runner.alg.save()
+    state.update(iter=it, infos=None, grt=cfg)
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    tmp.replace(path)  # atomic: a kill never leaves a half-written checkpoint
+
+
+def _row(it: int, steps_per_it: int, ended: list[dict], runner: OnPolicyRunner, seconds: float) -> dict:
+    losses = getattr(runner, "_last_losses", {}) or {}
+    std = runner.alg.get_policy().output_std
+    return {"iteration": it, "steps": (it + 1) * steps_per_it,
+            "success_rate": float(np.mean([e["success"] for e in ended])) if ended else float("nan"),
+            "episodes": len(ended),
+            "mean_return": float(np.mean([e["ret"] for e in ended])) if ended else float("nan"),
+            "episode_steps": float(np.mean([e["length"] for e in ended])) if ended else float("nan"),
+            "value_loss": losses.get("value", float("nan")), "surrogate_loss": losses.get("surrogate", float("nan")),
+            "entropy": losses.get("entropy", float("nan")), "action_std": float(std.detach().mean()),
+            "learning_rate": float(runner.alg.learning_rate), "collect_s": seconds, "learn_s": 0.0}
+
+
+def _read_rows(path: Path, upto: int) -> list[dict]:
+    if not path.exists():
+        return []
+    with path.open() as f:
+        rows = [{k: (float(v) if k not in ("iteration", "episodes") else int(float(v))) for k, v in r.items()}
+                for r in csv.DictReader(f)]
+    return [r for r in rows if r["iteration"] < upto]
+
+
+def _write_rows(path: Path, rows: list[dict]) -> None:
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+    tmp.replace(path)
+
+
+def plot_curve(metrics_csv: str | Path, dest: str | Path, title: str = "") -> None:
+    """Training curve: episode success rate and mean return against environment steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _read_rows(Path(metrics_csv), 10**12)
+    if not rows:
+        return
+    steps = np.array([r["steps"] for r in rows])
+    succ = np.array([r["success_rate"] for r in rows])
+    ret = np.array([r["mean_return"] for r in rows])
+    k = max(1, len(rows) // 50)
+    smooth = np.convolve(np.nan_to_num(succ), np.ones(k) / k, mode="same")
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
+    ax[0].plot(steps, succ, ".", alpha=0.3, ms=3)
+    ax[0].plot(steps, smooth, "-", lw=2)
+    ax[0].set(xlabel="environment steps", ylabel="training episode success", ylim=(-0.02, 1.02))
+    ax[1].plot(steps, ret, ".", alpha=0.4, ms=3)
+    ax[1].set(xlabel="environment steps", ylabel="mean episode return")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(dest, dpi=110)
+    plt.close(fig)
+
+
+def write_json(path: str | Path, data: dict) -> None:
+    Path(path).write_text(json.dumps(data, indent=1, default=str))

@@ -1,0 +1,175 @@
+"""The insertion task session: one GRT-Insert-v1 env, seeded insertion episodes, learning and evaluation.
+
+An episode (paper appendix "High-Precision Insertion Task"): the socket is placed at random, the plug
+starts pinched above it, and the policy moves the hand with 6-D delta poses until the plug's tip is
+within 3 mm of the hole's floor (success) or 256 control steps have passed. A failed trial is named:
+
+- ``dropped``: the plug left the fingers (its grip point is > 15 mm from the TCP, or no finger holds it);
+- ``jammed``: the plug's tip is in the hole's mouth (within 2 mm of its axis) but did not go down;
+- ``misaligned``: the plug turned in the hand (> 10 deg tilt) or its tip ended off the hole's axis
+  after touching the socket;
+- ``timeout``: none of the above: the policy never brought the plug to the socket;
+- ``sim_error``: a physics failure (non-finite state, runaway plug).
+
+The socket is built once per session from the *nominal* plug (``socket_object``), so a CrashShape
+goes into the same socket as the nominal plug.
+"""
+
+from __future__ import annotations
+
+import gc
+
+import gymnasium as gym
+import numpy as np
+import trimesh
+
+from grt.tasks.base import EpisodeSession
+from grt.tasks.insertion_env import STATE_DIM, InsertEnv  # registers GRT-Insert-v1
+from grt.tasks.socket import PlugFitError, build_socket
+
+__all__ = ["InsertEnv", "InsertionSession", "PlugFitError", "plug_geometry"]
+
+MAX_GRIPPER_WIDTH = 0.08  # m: the Panda's fingers open 2 x 0.04
+
+
+def plug_geometry(spec: str, head_length: float | None, grip_height: float | None) -> tuple[float, float]:
+    """``(head_length, grip_height)`` (m) of a plug: given values, else the built-in object's.
+
+    Raises:
+        PlugFitError: a user's plug file without ``head_length`` / ``grip_height``.
+    """
+    from grt.objects import BUILDERS, object_info
+
+    if head_length is not None and grip_height is not None:
+        return float(head_length), float(grip_height)
+    known = object_info(spec).get("insertion") if spec in BUILDERS else None
+    if known is None:
+        raise PlugFitError(f"{spec!r} is no built-in plug: give its connector length and grip height, e.g. "
+                           "task.session.head_length=0.012 task.session.grip_height=0.03 (meters, tip at z = 0)")
+    return (float(head_length if head_length is not None else known["head_length"]),
+            float(grip_height if grip_height is not None else known["grip_height"]))
+
+
+def _check_grip(mesh: trimesh.Trimesh, grip_height: float) -> None:
+    """The plug has a surface at the grip height, narrow enough for the Panda's fingers."""
+    verts = np.asarray(mesh.vertices)
+    band = verts[np.abs(verts[:, 2] - grip_height) < 0.008]
+    if len(band) == 0:
+        raise PlugFitError(f"the plug has no surface within 8 mm of grip_height={grip_height} m: set "
+                           "task.session.grip_height to where the fingers should hold it (m above the tip)")
+    width = 2 * float(np.abs(band[:, 1]).max())
+    if width > MAX_GRIPPER_WIDTH - 0.004:
+        raise PlugFitError(f"the plug's grip is {width * 1000:.0f} mm wide across the fingers; the Panda opens "
+                           f"{MAX_GRIPPER_WIDTH * 1000:.0f} mm: use a narrower plug, or check its units")
+
+
+class InsertionSession(EpisodeSession):
+    """Insertion episodes of one policy on one plug at a time.
+
+    Args:
+        policy: a :class:`grt.policies.base.Policy` (``None`` for a learning worker).
+        socket_object: the nominal plug (built-in name or mesh path) the socket is made for.
+        head_length, grip_height: the plug's connector length and grip point (m); ``None``: the
+            built-in plug's values.
+        clearance, chamfer: the socket's hole (m per side) and entrance chamfer (m).
+        max_steps: control steps per episode (paper: 256).
+        cloud_points: points in the ``cloud`` observation (paper: 500; 0 for state-only policies).
+        env_id: the registered ManiSkill env; env: further :class:`InsertEnv` arguments.
+        rebuild_each_trial: see :class:`grt.tasks.base.EpisodeSession`.
+    """
+
+    num_actions = 6
+    task_name = "insertion"
+
+    def __init__(self, policy=None, socket_object: str = "usb_plug", head_length: float | None = None,
+                 grip_height: float | None = None, clearance: float = 0.0004, chamfer: float = 0.0015,
+                 max_steps: int = 256, cloud_points: int = 500, env_id: str = "GRT-Insert-v1",
+                 env: dict | None = None, rebuild_each_trial: bool = True):
+        super().__init__(policy, max_steps, rebuild_each_trial)
+        from grt.geometry.mesh import load_mesh
+
+        self.head_length, self.grip_height = plug_geometry(str(socket_object), head_length, grip_height)
+        nominal = load_mesh(socket_object)
+        _check_grip(nominal, self.grip_height)
+        self.socket = build_socket(nominal, self.head_length, clearance=clearance, chamfer=chamfer)
+        self.obs_spec = self.observation_spec(cloud_points=cloud_points)
+        self._check_policy()
+        self.env = gym.make(env_id, obs_mode="none", sim_backend="physx_cpu", render_backend="cpu",
+                            reward_mode="dense", head_length=self.head_length,
+                            grip_height=self.grip_height, cloud_points=int(cloud_points), **(env or {}))
+        self.unwrapped: InsertEnv = self.env.unwrapped
+        self.unwrapped.set_socket(self.socket)
+        self._object_changed = True
+        gc.collect()
+        gc.freeze()  # ManiSkill's reconfigure runs gc.collect(): keep the long-lived heap out of it
+
+    @classmethod
+    def observation_spec(cls, cloud_points: int = 500, **_) -> dict[str, tuple[int, ...]]:
+        spec = {"state": (STATE_DIM,)}
+        if cloud_points:
+            spec["cloud"] = (int(cloud_points), 3)
+        return spec
+
+    @classmethod
+    def check_object(cls, mesh: trimesh.Trimesh, socket_object: str = "usb_plug", head_length: float | None = None,
+                     grip_height: float | None = None, clearance: float = 0.0004, **_) -> None:
+        """The plug must fit the gripper and have a head to build the socket from (see :class:`PlugFitError`)."""
+        from grt.geometry.mesh import load_mesh
+
+        head, grip = plug_geometry(str(socket_object), head_length, grip_height)
+        _check_grip(mesh, grip)
+        nominal = load_mesh(socket_object)
+        _check_grip(nominal, grip)
+        socket = build_socket(nominal, head, clearance=clearance)
+        if socket.outer_radius > 0.1:
+            raise PlugFitError(f"the plug's head is {2 * socket.outer_radius * 1000:.0f} mm across: too big for a "
+                               "tabletop socket; is the mesh in meters (object_scale) and head_length right?")
+
+    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
+        _check_grip(mesh, self.grip_height)
+        self.unwrapped.set_object(mesh, parts)
+        self._object_changed = True
+
+    def close(self) -> None:
+        self.env.close()
+
+    def render(self, path: str) -> None:
+        """Write a PNG of the scene as it is now, 512 x 512."""
+        from PIL import Image
+
+        image = self.unwrapped.render_rgb_array()
+        Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
+
+    # --- EpisodeSession hooks ------------------------------------------------------------------------
+    def _reset_env(self, seed: int, rebuild: bool) -> None:
+        self.env.reset(seed=seed, options=dict(reconfigure=rebuild or self._object_changed))
+        self._object_changed = False
+        self._touched = False
+
+    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
+        _, reward, _, _, info = self.env.step(action)
+        state = {k: float(info[k][0]) for k in ("tip_to_floor", "tip_off_axis", "keypoint_error", "grip_offset",
+                                                "tilt_deg")}
+        state["pinched"] = bool(info["pinched"][0])
+        self._touched |= state["tip_to_floor"] < self.socket.depth + 0.002 and state["tip_off_axis"] < 0.01
+        state["touched_socket"] = self._touched
+        return float(reward[0]), bool(info["success"][0]), state
+
+    def observe(self) -> dict[str, np.ndarray]:
+        return self.unwrapped.task_obs()
+
+    def judge(self, success: bool, info: dict) -> str:
+        if success:
+            return "success"
+        if info["grip_offset"] > 0.015 or not info["pinched"]:
+            return "dropped"
+        if info["tip_off_axis"] < 0.002 and info["tip_to_floor"] < self.socket.depth + 0.002:
+            return "jammed"
+        if info["tilt_deg"] > 10.0 or info["touched_socket"]:
+            return "misaligned"
+        return "timeout"
+
+    def _check(self, info: dict) -> None:
+        super()._check(info)
+        if info["grip_offset"] > 0.5:
+            raise RuntimeError(f"the plug ran away ({info['grip_offset']:.2f} m from the hand)")

@@ -1,0 +1,324 @@
+"""GRT-Insert-v1: a Panda holding a plug above a matched socket inserts it (IndustReal-style).
+
+**Description.** A Franka Panda (base at (-0.615, 0, 0)) starts with a plug pinched between its
+fingers, a few centimeters above a socket whose hole is the plug head's cross-section grown by a
+clearance (0.4 mm a side) with a 1.5 mm entrance chamfer (:mod:`grt.tasks.socket`). The plug is held
+**by friction only**: the fingers are driven closed (PD, force-limited) against its grip, so a plug
+whose grip was deformed sits differently in the hand and can slip or turn when it meets the socket.
+Actions are 6-D end-effector delta poses in [-1, 1], scaled by 0.01 (m, rad) through ManiSkill's
+task-space ``pd_ee_delta_pose`` controller; the gripper is not part of the action (held closed).
+
+**Observations** (:meth:`InsertEnv.task_obs`). ``state`` (24,): 7 arm joint positions, TCP pose
+(position, wxyz quaternion), the *noisy* target TCP pose (position with uniform ±1 mm XY noise
+drawn per episode, quaternion) and the displacement from the TCP to the noisy target position.
+``cloud`` (``cloud_points``, 3): farthest-point samples of the plug's and the socket's surfaces at
+their current poses, relative to the TCP (sampled once per object from the posed meshes, not rendered).
+
+**Randomizations** (per seeded reset). Socket XY uniform ±0.1 m around (0, 0), height 0-0.05 m,
+yaw ±0.087 rad; plug above the socket with XY noise ±0.01 m, its tip 10-25 mm above the socket's
+top, yaw ±0.087 rad; target XY noise ±1 mm.
+
+**Success.** The plug's tip is within 3 mm (vertically, in the socket frame) of the hole's floor
+and within 2 mm of the hole's axis. An episode ends at success or after ``max_episode_steps``.
+
+**Deformable object.** The plug: visual = the candidate mesh, collision = its convex parts, from
+memory. The socket is built once from the *nominal* plug (``set_socket``) and never deformed. Swap
+the plug with :meth:`InsertEnv.set_object` then ``reset(options={"reconfigure": True})``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sapien
+import torch
+import trimesh
+from mani_skill.agents.controllers import PDEEPoseControllerConfig
+from mani_skill.agents.robots import Panda
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.sensors.camera import CameraConfig
+from mani_skill.utils import sapien_utils
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.scene_builder.table import TableSceneBuilder
+from mani_skill.utils.structs.pose import Pose
+from mani_skill.utils.structs.types import SimConfig
+from sapien import physx
+
+from grt.tasks.motion import PandaIK
+from grt.tasks.scene import InMemoryActorBuilder, build_object_actor
+from grt.tasks.socket import SocketGeometry, build_socket
+
+ACTION_SCALE = 0.01  # m and rad per unit action (paper: delta pose scaled by 0.01)
+REST_QPOS = np.array([0.0, -0.2847, 0.0, -2.2441, 0.0, 1.9594, np.pi / 4, 0.04, 0.04])
+# TCP orientation in the plug frame: approach (TCP z) down the plug's -z, fingers closing along plug y.
+TCP_IN_PLUG_ROT = np.diag([1.0, -1.0, -1.0])
+STATE_DIM = 24
+
+
+class PandaInsert(Panda):
+    """The Panda with the paper's insertion action: arm-only 6-D delta pose scaled by 0.01; the
+    fingers are driven closed by :class:`InsertEnv` (not part of the action)."""
+
+    uid = "panda_insert"
+
+    @property
+    def _controller_configs(self):
+        arm = PDEEPoseControllerConfig(
+            joint_names=self.arm_joint_names, pos_lower=-ACTION_SCALE, pos_upper=ACTION_SCALE,
+            rot_lower=-ACTION_SCALE, rot_upper=ACTION_SCALE, stiffness=self.arm_stiffness,
+            damping=self.arm_damping, force_limit=self.arm_force_limit, ee_link=self.ee_link_name,
+            urdf_path=self.urdf_path)
+        return dict(pd_ee_delta_pose=dict(arm=arm))
+
+
+def pose_matrix(rot: np.ndarray, pos) -> np.ndarray:
+    """``(4, 4)`` from a rotation ``(3, 3)`` and a position ``(3,)``."""
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = rot, pos
+    return out
+
+
+def rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def default_plug(head_length: float) -> tuple[trimesh.Trimesh, list[np.ndarray]]:
+    """The built-in USB-like plug and two convex parts (head, grip): the object before any ``set_object``."""
+    from grt.objects import get_object
+
+    mesh = get_object("usb_plug")
+    v = np.asarray(mesh.vertices)
+    return mesh, [v[v[:, 2] <= head_length + 1e-9], v[v[:, 2] >= head_length - 1e-9]]
+
+
+def farthest_points(points: np.ndarray, k: int) -> np.ndarray:
+    """``k`` farthest-point samples of ``points`` ``(P, 3)``, starting from the first point."""
+    k = min(k, len(points))
+    chosen = np.zeros(k, np.int64)
+    dist = np.linalg.norm(points - points[0], axis=1)
+    for i in range(1, k):
+        chosen[i] = int(np.argmax(dist))
+        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[i]], axis=1))
+    return points[chosen]
+
+
+@register_env("GRT-Insert-v1", max_episode_steps=256)
+class InsertEnv(BaseEnv):
+    """Panda + table + socket + one in-memory plug. See the module docstring.
+
+    Args:
+        head_length: length (m) of the plug's connector (from its tip at z = 0).
+        grip_height: height (m) on the plug of the point between the fingertips in the nominal grip.
+        socket_xy_range, socket_z_range, socket_yaw_range: socket randomization (m, m, rad).
+        plug_xy_range: XY noise (m) of the plug above the socket; plug_height_range: (low, high) of its
+            tip above the socket's top (m); plug_yaw_range: rad.
+        target_noise: XY noise (m) of the observed target pose.
+        plug_friction, plug_density: the plug's material.
+        cloud_points: points in the ``cloud`` observation (0: no cloud).
+        sim_freq, control_freq: physics and control rates (Hz).
+    """
+
+    SUPPORTED_ROBOTS = ["panda_insert"]
+    agent: PandaInsert
+
+    def __init__(self, *args, head_length: float = 0.012, grip_height: float = 0.030,
+                 socket_xy_range: float = 0.1, socket_z_range: tuple[float, float] = (0.0, 0.05),
+                 socket_yaw_range: float = 0.087, plug_xy_range: float = 0.01,
+                 plug_height_range: tuple[float, float] = (0.010, 0.025), plug_yaw_range: float = 0.087,
+                 target_noise: float = 0.001, plug_friction: float = 1.0, plug_density: float = 1000.0,
+                 cloud_points: int = 500, sim_freq: int = 100, control_freq: int = 20, **kwargs):
+        self.head_length, self.grip_height = float(head_length), float(grip_height)
+        self.socket_xy_range, self.socket_z_range = float(socket_xy_range), tuple(socket_z_range)
+        self.socket_yaw_range, self.plug_xy_range = float(socket_yaw_range), float(plug_xy_range)
+        self.plug_height_range, self.plug_yaw_range = tuple(plug_height_range), float(plug_yaw_range)
+        self.target_noise = float(target_noise)
+        self.plug_friction, self.plug_density = float(plug_friction), float(plug_density)
+        self.cloud_points = int(cloud_points)
+        self._sim_freq, self._control_freq = int(sim_freq), int(control_freq)
+        self._ik: PandaIK | None = None
+        plug, parts = default_plug(self.head_length)
+        self.set_socket(build_socket(plug, self.head_length))
+        self.set_object(plug, parts)
+        super().__init__(*args, robot_uids=PandaInsert, **kwargs)
+
+    # ------------------------------------------------------------------ configuration
+    @property
+    def _default_sim_config(self):
+        return SimConfig(sim_freq=self._sim_freq, control_freq=self._control_freq)
+
+    @property
+    def _default_sensor_configs(self) -> list[CameraConfig]:
+        return []
+
+    @property
+    def _default_human_render_camera_configs(self) -> CameraConfig:
+        pose = sapien_utils.look_at([0.25, 0.3, 0.3], [0.0, 0.0, 0.08])
+        return CameraConfig("render_camera", pose, 512, 512, 0.8, 0.01, 10)
+
+    def set_socket(self, socket: SocketGeometry) -> None:
+        """The socket (built from the nominal plug); takes effect at the next reconfigure."""
+        self.socket = socket
+
+    def set_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
+        """The next plug (meters, tip at z = 0, connector down) and its convex parts ``(K, 3)``."""
+        if len(parts) == 0:
+            raise ValueError("a plug needs at least one convex collision part")
+        self.plug_mesh = mesh
+        self.plug_parts = [np.asarray(p, np.float64).reshape(-1, 3) for p in parts]
+        self._plug_cloud = self._surface_cloud(mesh, self.cloud_points // 2, seed=1)
+        self._grip_half_width = self._grip_width(mesh)
+
+    def _surface_cloud(self, mesh: trimesh.Trimesh, k: int, seed: int) -> np.ndarray:
+        if k <= 0:
+            return np.zeros((0, 3))
+        samples, _ = trimesh.sample.sample_surface(mesh, max(20 * k, 2000), seed=seed)
+        return farthest_points(np.asarray(samples), k)
+
+    def _grip_width(self, mesh: trimesh.Trimesh) -> float:
+        """Half the largest |y| of the plug within the finger pads' band (m): where the fingers start."""
+        v = np.asarray(mesh.vertices)
+        band = v[np.abs(v[:, 2] - self.grip_height) < 0.008]
+        if len(band) == 0:
+            raise ValueError(f"the plug has no surface within 8 mm of grip_height={self.grip_height} m")
+        return float(np.abs(band[:, 1]).max())
+
+    # ------------------------------------------------------------------ scene
+    def _load_agent(self, options: dict):
+        super()._load_agent(options, sapien.Pose(p=[-0.615, 0, 0]))
+
+    def _load_scene(self, options: dict):
+        self.table_scene = TableSceneBuilder(self, robot_init_qpos_noise=0.0)
+        self.table_scene.build()
+        material = physx.PhysxMaterial(static_friction=0.5, dynamic_friction=0.5, restitution=0.0)
+        builder = InMemoryActorBuilder(self.socket.parts, material, density=1000.0)
+        builder.set_scene(self.scene)
+        if self.scene.can_render():
+            m = self.socket.mesh
+            builder._procedural_shapes.append(sapien.render.RenderShapeTriangleMesh(
+                np.ascontiguousarray(m.vertices, np.float32), np.ascontiguousarray(m.faces, np.uint32),
+                np.ascontiguousarray(m.vertex_normals, np.float32), np.zeros((len(m.vertices), 2), np.float32),
+                sapien.render.RenderMaterial(base_color=(0.3, 0.3, 0.35, 1.0))))
+        builder.initial_pose = sapien.Pose(p=[0.0, 0.0, 0.02])
+        self.socket_actor = builder.build_kinematic(name="grt_socket")
+        self.plug = build_object_actor(self.scene, self.plug_mesh, self.plug_parts, "grt_plug",
+                                       friction=self.plug_friction, density=self.plug_density,
+                                       initial_z=0.3)
+        self._socket_cloud = self._surface_cloud(self.socket.mesh, self.cloud_points - self.cloud_points // 2,
+                                                 seed=2)
+
+    def _after_reconfigure(self, options: dict):
+        robot = self.agent.robot
+        self._ik = PandaIK(robot)
+        self._fingers = [j for j in robot.get_active_joints() if "finger" in j.name]
+        for joint in self._fingers:
+            joint.set_drive_properties(stiffness=1e3, damping=1e2, force_limit=100)
+
+    # ------------------------------------------------------------------ episodes
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
+        rng = np.random.default_rng(int(self._episode_seed[0]))
+        sock = self.socket
+        xy = rng.uniform(-self.socket_xy_range, self.socket_xy_range, 2)
+        top = 0.02 + rng.uniform(*self.socket_z_range)
+        yaw = rng.uniform(-self.socket_yaw_range, self.socket_yaw_range)
+        # The socket frame: origin at the hole's axis on the top face; the hole center is the plug's axis.
+        socket_world = pose_matrix(rot_z(yaw), [xy[0], xy[1], top])
+        self.socket_actor.set_pose(Pose.create(sapien.Pose(socket_world.astype(np.float32))))
+        axis = np.r_[sock.center, 0.0]  # plug-frame XY of the head's axis
+        tcp_in_plug = pose_matrix(TCP_IN_PLUG_ROT, [0.0, 0.0, self.grip_height])
+        # Inserted: the plug's tip sits on the floor minus the margin, its axis on the hole's axis.
+        plug_inserted = socket_world @ pose_matrix(np.eye(3), [0.0, 0.0, -self.head_length]
+                                                   ) @ pose_matrix(np.eye(3), -axis)
+        self.target_tcp = plug_inserted @ tcp_in_plug
+        self.hole_floor = (socket_world @ np.r_[0.0, 0.0, -sock.depth, 1.0])[:3]
+        self.socket_world = socket_world
+        noise = np.r_[rng.uniform(-self.target_noise, self.target_noise, 2), 0.0]
+        self.target_obs = self.target_tcp.copy()
+        self.target_obs[:3, 3] += noise
+        t = sapien.Pose(self.target_obs.astype(np.float32))
+        self._target_obs_pq = np.concatenate([t.p, t.q]).astype(np.float32)
+        # Start: the plug above the socket, tip 10-25 mm over the top face.
+        dxy = rng.uniform(-self.plug_xy_range, self.plug_xy_range, 2)
+        height = rng.uniform(*self.plug_height_range)
+        plug_yaw = rng.uniform(-self.plug_yaw_range, self.plug_yaw_range)
+        plug_start = pose_matrix(rot_z(plug_yaw), [xy[0] + dxy[0], xy[1] + dxy[1], top + height]
+                                 ) @ pose_matrix(np.eye(3), -axis)
+        tcp_start = plug_start @ tcp_in_plug
+        q = self._ik.solve(tcp_start, REST_QPOS)
+        if q is None:
+            raise RuntimeError(f"no IK solution for the start pose {tcp_start[:3, 3].round(3).tolist()}")
+        half = self._grip_half_width
+        q = q.copy()
+        q[7:] = half
+        self.agent.reset(torch.as_tensor(q, dtype=torch.float32)[None])
+        for joint in self._fingers:
+            joint.set_drive_target(-0.01)
+        self.plug.set_pose(Pose.create(sapien.Pose(plug_start.astype(np.float32))))
+        self.plug.set_linear_velocity(torch.zeros((1, 3)))
+        self.plug.set_angular_velocity(torch.zeros((1, 3)))
+        self.start_info = dict(socket_xy=xy.round(4).tolist(), socket_top=round(top, 4), socket_yaw=round(yaw, 4),
+                               plug_dxy=dxy.round(4).tolist(), plug_height=round(height, 4),
+                               plug_yaw=round(plug_yaw, 4))
+
+    # ------------------------------------------------------------------ state, success, reward
+    def plug_pose(self) -> np.ndarray:
+        """``(4, 4)`` world pose of the plug frame (tip at its origin)."""
+        return self.plug.pose.to_transformation_matrix()[0].numpy().astype(np.float64)
+
+    def tcp_pose(self) -> np.ndarray:
+        return self.agent.tcp.pose.to_transformation_matrix()[0].numpy().astype(np.float64)
+
+    def keypoints(self) -> tuple[np.ndarray, np.ndarray]:
+        """Plug keypoints and their targets ``(2, 3)`` each (m): the head's tip and its top, on its axis."""
+        axis = np.r_[self.socket.center, 0.0]
+        local = np.stack([axis, axis + [0.0, 0.0, self.head_length]])
+        plug = self.plug_pose()
+        now = local @ plug[:3, :3].T + plug[:3, 3]
+        inserted = self.target_tcp @ np.linalg.inv(pose_matrix(TCP_IN_PLUG_ROT, [0.0, 0.0, self.grip_height]))
+        return now, local @ inserted[:3, :3].T + inserted[:3, 3]
+
+    def insertion_state(self) -> dict:
+        """Where the plug is relative to the hole (socket frame, m) and whether it is still held."""
+        now, target = self.keypoints()
+        inv = np.linalg.inv(self.socket_world)
+        tip = inv[:3, :3] @ now[0] + inv[:3, 3]
+        depth_to_floor = tip[2] + self.socket.depth
+        plug, tcp = self.plug_pose(), self.tcp_pose()
+        grip_point = plug[:3, :3] @ [0.0, 0.0, self.grip_height] + plug[:3, 3]
+        tilt = float(np.degrees(np.arccos(np.clip(plug[2, 2], -1.0, 1.0))))
+        return dict(tip_to_floor=float(depth_to_floor), tip_off_axis=float(np.linalg.norm(tip[:2])),
+                    keypoint_error=float(np.linalg.norm(now - target, axis=1).mean()),
+                    grip_offset=float(np.linalg.norm(grip_point - tcp[:3, 3])), tilt_deg=tilt,
+                    pinched=bool(self.agent.is_grasping(self.plug)[0]))
+
+    def evaluate(self) -> dict:
+        if self.socket is None or not hasattr(self, "target_tcp"):
+            return dict(success=torch.zeros(1, dtype=torch.bool))
+        s = self.insertion_state()
+        success = s["tip_to_floor"] < 0.003 and s["tip_off_axis"] < 0.002
+        return dict(success=torch.tensor([success]), **{k: torch.tensor([v]) for k, v in s.items()})
+
+    def compute_dense_reward(self, obs, action, info):
+        """``-tanh(keypoint error / 2 cm)`` (in [-1, 0]) + 0.25 while the tip is in the hole + 2 at success."""
+        err = info["keypoint_error"].float()
+        engaged = (info["tip_to_floor"] < self.head_length) & (info["tip_off_axis"] < 0.002)
+        return -torch.tanh(err / 0.02) + 0.25 * engaged.float() + 2.0 * info["success"].float()
+
+    def compute_normalized_dense_reward(self, obs, action, info):
+        return self.compute_dense_reward(obs, action, info) / 2.25
+
+    def _get_obs_extra(self, info: dict) -> dict:
+        return {}
+
+    def task_obs(self) -> dict[str, np.ndarray]:
+        """The policy's observations (see the module docstring): ``state`` (24,), ``cloud`` (P, 3)."""
+        qpos = self.agent.robot.get_qpos()[0].numpy()[:7]
+        tcp = self.agent.tcp.pose.raw_pose[0].numpy()
+        target = self._target_obs_pq
+        state = np.concatenate([qpos, tcp, target, target[:3] - tcp[:3]]).astype(np.float32)
+        out = {"state": state}
+        if self.cloud_points:
+            plug, sock = self.plug_pose(), self.socket_world
+            cloud = np.concatenate([self._plug_cloud @ plug[:3, :3].T + plug[:3, 3],
+                                    self._socket_cloud @ sock[:3, :3].T + sock[:3, 3]])
+            out["cloud"] = (cloud - tcp[:3]).astype(np.float32)
+        return out
