@@ -31,7 +31,6 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--object", default="usb_plug", help="plug (default usb_plug)")
     args = ap.parse_args(argv)
 
-    from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
     from grt.eval.collision import make_collision

@@ -180,10 +180,14 @@ def usb_plug():
 
 def round_peg():
     # A round peg standing on its pin for insertion: a 10 mm pin, 12 mm long, under a 16 mm grip
-    # cylinder 30 mm tall with rounded top edges.
-    rp, lp, rg, hg = 0.005, 0.012, 0.008, 0.042
+    # cylinder 30 mm tall with rounded top edges and two milled flats (13 mm apart) where the fingers
+    # hold it: on a bare cylinder flat finger pads touch a line and the peg swings about it.
+    rp, lp, rg, hg, flat = 0.005, 0.012, 0.008, 0.042, 0.0065
     prof = _cat((0, 0), (rp, 0), (rp, lp), (rg, lp), arc((rg - 0.002, hg - 0.002), 0.002, 0, PI / 2, n=8), (0, hg))
     solid = revolve(prof, segments=40, min_spacing=0.0012)
+    flats = grid_box((-0.01, -flat, lp + 0.004), (0.01, flat, hg + 0.001), 0.0015)
+    keep = grid_box((-0.01, -0.01, -0.001), (0.01, 0.01, lp + 0.004), 0.0015)
+    solid = solid ^ (flats + keep)
     regions = {"head": _box((-rp - 0.0005, -rp - 0.0005, -0.0005), (rp + 0.0005, rp + 0.0005, lp - 0.0015)),
                "grip": _box((-rg - 0.0005, -rg - 0.0005, lp + 0.0015), (rg + 0.0005, rg + 0.0005, hg + 0.0005))}
     return solid, regions

@@ -147,7 +147,8 @@ def behavior_clone(runner: OnPolicyRunner, env: TaskVecEnv, expert, steps: int, 
     before = len(env.episodes)
     obs = env.get_observations()
     for _ in range(steps):
-        act = torch.as_tensor(expert.act({k: obs[k].numpy() for k in obs.keys()}), dtype=torch.float32)
+        act = torch.as_tensor(expert.act({k: obs[k].numpy() for k in obs.keys()}),  # noqa: SIM118 - a TensorDict iterates rows
+                              dtype=torch.float32)
         obs_list.append(obs.clone())
         act_list.append(act)
         noisy = (act + noise * torch.randn(act.shape, generator=gen)).clamp(-1.0, 1.0)

@@ -158,6 +158,11 @@ class EpisodeSession(TaskSession):
     def judge(self, success: bool, info: dict) -> str:
         """The trial's mode (``success`` or a failure mode) from the final state."""
 
+    def hopeless(self, info: dict) -> bool:
+        """End an evaluation trial early: nothing the policy does can succeed any more (e.g. the
+        object left the gripper). Learning episodes always run to success or the time limit."""
+        return False
+
     def score(self, success: bool, info: dict) -> float:
         """The trial's score: ``float(success)`` for binary tasks; continuous tasks override."""
         return float(success)
@@ -191,7 +196,7 @@ class EpisodeSession(TaskSession):
                 action = self.policy.act({k: v[None] for k, v in obs.items()})[0]
                 obs, _, success, truncated, info = self.step(action)
                 self._check(info)
-                done = success or truncated
+                done = success or truncated or self.hopeless(info)
             mode = self.judge(success, info)
             score = self.score(success, info)
         except Exception as err:  # physics failures must not pass silently

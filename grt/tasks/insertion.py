@@ -169,6 +169,9 @@ class InsertionSession(EpisodeSession):
             return "misaligned"
         return "timeout"
 
+    def hopeless(self, info: dict) -> bool:
+        return info["grip_offset"] > 0.015  # the plug left the fingers: it cannot be inserted any more
+
     def _check(self, info: dict) -> None:
         super()._check(info)
         if info["grip_offset"] > 0.5:

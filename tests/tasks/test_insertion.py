@@ -96,3 +96,54 @@ def test_a_plug_shifted_in_the_grip_is_named_a_failure(servo_session):
     finally:
         session.load_object(plug, servo_session[2])
     assert "success" not in modes and modes <= {"jammed", "misaligned", "dropped", "timeout"}
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("name", ["insertion_state", "insertion_pcd"])
+def test_shipped_checkpoints_load_and_insert(name, servo_session):
+    from grt.policies.rsl_rl import RslRlPolicy
+    from grt.tasks.insertion import InsertionSession
+
+    policy = RslRlPolicy(f"grt/policies/checkpoints/{name}.pt", task="insertion")
+    assert policy.config["task"] == "insertion" and policy.config["train_cfg"]["algorithm"]["class_name"] == "PPO"
+    session = InsertionSession(policy, socket_object="usb_plug")  # checks the policy's observations
+    _, plug, parts = servo_session
+    session.load_object(plug, parts)
+    try:
+        modes = [session.run_trial(s).mode for s in (11, 12, 13, 14)]
+    finally:
+        session.close()
+    assert modes.count("success") >= 3, modes
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_ppo_iterations_on_the_real_insertion_env_update_the_policy(tmp_path):
+    from grt.eval.collision import make_collision
+    from grt.policies.rsl_rl import RslRlPolicy
+    from grt.rl.train import export_policy, train
+    from grt.rl.vec_env import Shape, TaskVecEnv
+    from tests.rl.conftest import TRAIN_CFG
+
+    plug = get_object("usb_plug")
+    task = {"name": "insertion", "num_actions": 6,
+            "session": {"_target_": "grt.tasks.insertion.InsertionSession", "socket_object": "usb_plug",
+                        "cloud_points": 0}}
+    env = TaskVecEnv(task, [Shape.of(plug, make_collision("coacd", None, None, None, 64).parts(plug))],
+                     num_envs=2, workers=0, seed=0, max_steps=16)
+    cfg = {**TRAIN_CFG, "num_steps_per_env": 8}
+    train(env, cfg, tmp_path / "a", "insertion", task, iterations=1)
+    before = torch_load(tmp_path / "a" / "last.pt")["actor_state_dict"]
+    train(env, cfg, tmp_path / "a", "insertion", task, iterations=3)
+    env.close()
+    after = torch_load(tmp_path / "a" / "last.pt")["actor_state_dict"]
+    changed = [k for k in before if not (before[k] == after[k]).all()]
+    assert any("mlp" in k for k in changed), "PPO did not update the actor"
+    policy = RslRlPolicy(str(export_policy(tmp_path / "a" / "last.pt", tmp_path / "p.pt")), task="insertion")
+    assert policy.act({"state": np.zeros((1, 24), np.float32)}).shape == (1, 6)
+
+
+def torch_load(path):
+    import torch
+
+    return torch.load(path, map_location="cpu", weights_only=False)
