@@ -15,6 +15,7 @@ log = logging.getLogger("grt")
 
 def user_errors() -> tuple[type[BaseException], ...]:
     """The exception types that mean "the input is wrong" (imported lazily: no simulator import)."""
+    from grt.blueteam.core import BlueTeamError
     from grt.eval.collision import CollisionError
     from grt.geometry.mesh import MeshError
     from grt.journal import JournalError
@@ -23,7 +24,8 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from grt.selectors.client import VLMError
     from grt.tasks.socket import PlugFitError
 
-    return (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError, CheckpointError, PlugFitError)
+    return (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError, CheckpointError, PlugFitError,
+            BlueTeamError)
 
 
 def find_user_error(exc: BaseException) -> BaseException | None:

@@ -66,6 +66,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     summary = {
         "task": cfg.task.name, "object": object_name(cfg.object), "object_spec": str(cfg.object),
         "selector": _choice(cfg, "selector"), "optimizer": _choice(cfg, "optimizer"),
+        "policy": _choice(cfg, "policy"),
         "s0": result.s0, "s0_ci95": nominal.get("ci95"),
         "best_score": best[0]["score"] if best else None, "best_ci95": best[0].get("ci95") if best else None,
         **summ,
@@ -97,7 +98,7 @@ def _choice(cfg: DictConfig, group: str) -> str:
     ``run(cfg)``) it is read from the ``_target_`` module, whose name is the option's by convention."""
     from hydra.core.hydra_config import HydraConfig
 
-    if HydraConfig.initialized():
+    if HydraConfig.initialized() and group in HydraConfig.get().runtime.choices:
         return str(HydraConfig.get().runtime.choices.get(group))
     return str(cfg[group]["_target_"]).rsplit(".", 2)[-2]
 

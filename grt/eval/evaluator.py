@@ -69,14 +69,20 @@ class SimEvaluator(Evaluator):
         self.collision_s = 0.0
 
     # ------------------------------------------------------------------------------- interface
-    def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int]) -> list[CandidateResult]:
-        """Score every mesh on the same seeds; see :meth:`grt.eval.base.Evaluator.evaluate`."""
+    def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int],
+                 parts: list[list[np.ndarray]] | None = None) -> list[CandidateResult]:
+        """Score every mesh on the same seeds; see :meth:`grt.eval.base.Evaluator.evaluate`.
+
+        ``parts`` gives each mesh's convex parts when the caller already has them (else they are made).
+        """
         seeds = [int(s) for s in seeds]
         if not seeds:
             raise ValueError("seeds is empty: give at least one episode seed")
         if len(set(seeds)) != len(seeds):
             raise ValueError("seeds must be distinct (a repeated seed repeats the same episode)")
-        parts, errors = self._collision_parts(meshes)
+        if parts is not None and len(parts) != len(meshes):
+            raise ValueError(f"parts must give one list per mesh ({len(meshes)}), got {len(parts)}")
+        parts, errors = self._collision_parts(meshes) if parts is None else (list(parts), {})
         jobs = self._jobs(meshes, parts, seeds)
         trials: list[dict[int, TrialOutcome]] = [{} for _ in meshes]
         wall = np.zeros(len(meshes))

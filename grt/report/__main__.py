@@ -15,7 +15,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-COLUMNS = ("task", "object", "selector", "optimizer", "s0", "best_score", "final_drop", "delta_complexity",
+COLUMNS = ("task", "object", "policy", "selector", "optimizer", "tau", "s0", "best_score", "final_drop", "delta_complexity",
            "iter_at_50", "auc", "evaluations", "wall_s")
 
 
@@ -40,14 +40,19 @@ def _fmt(v, kind: str = "") -> str:
     return f"{v:.3f}" if isinstance(v, float) else str(v)
 
 
+def method(r: dict) -> str:
+    """The paper's row label: handles + search, ``+ SS`` under a Smoothness-Score budget."""
+    return f"{r['selector']} + {r['optimizer']}" + (" + SS" if r.get("tau") is not None else "")
+
+
 def aggregate(rows: list[dict]) -> list[dict]:
-    """Mean of each metric per (task, selector, optimizer), over objects/seeds (NaNs skipped)."""
+    """Mean of each metric per (task, policy, method), over objects/seeds (NaNs skipped)."""
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in rows:
-        groups[(r["task"], r["selector"], r["optimizer"])].append(r)
+        groups[(r["task"], r.get("policy") or "-", method(r))].append(r)
     out = []
-    for (task, sel, opt), rs in sorted(groups.items()):
-        agg = {"task": task, "selector": sel, "optimizer": opt, "runs": len(rs)}
+    for (task, policy, label), rs in sorted(groups.items()):
+        agg = {"task": task, "policy": policy, "method": label, "runs": len(rs)}
         for k in ("final_drop", "delta_complexity", "iter_at_50", "auc"):
             vals = [r[k] for r in rs if r.get(k) is not None and not (isinstance(r[k], float) and math.isnan(r[k]))]
             agg[k] = sum(vals) / len(vals) if vals else None
@@ -57,17 +62,17 @@ def aggregate(rows: list[dict]) -> list[dict]:
 
 def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     """Per-run table, per-method table (the paper's columns) and the failed jobs."""
-    lines = ["| task | object | selector | optimizer | S0 | best | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
+    lines = ["| task | object | policy | method | S0 | best | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['task']} | {r['object']} | {r['selector']} | {r['optimizer']} | {_fmt(r['s0'])} | "
+        lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | {_fmt(r['s0'])} | "
                      f"{_fmt(r['best_score'])} | {_fmt(r['final_drop'], 'pct')} | {_fmt(r['delta_complexity'])} | "
                      f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} |")
     lines += ["", "Mean per method (* = 50% drop not reached; T reported):", "",
-              "| task | method | runs | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
-              "|---|---|---|---|---|---|---|"]
+              "| task | policy | method | runs | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
+              "|---|---|---|---|---|---|---|---|"]
     for a in agg:
-        lines.append(f"| {a['task']} | {a['selector']} + {a['optimizer']} | {a['runs']} | {_fmt(a['final_drop'], 'pct')} | "
+        lines.append(f"| {a['task']} | {a['policy']} | {a['method']} | {a['runs']} | {_fmt(a['final_drop'], 'pct')} | "
                      f"{_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | {_fmt(a['auc'])} |")
     if failed:
         lines += ["", f"{len(failed)} failed job(s) (see error.txt):"] + [f"- {p}" for p in failed]

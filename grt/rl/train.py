@@ -47,7 +47,8 @@ def _runner_cfg(train_cfg: dict) -> dict:
 def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str, task_cfg: dict,
           iterations: int, init_checkpoint: str | None = None, save_interval: int = 10,
           target_success: float | None = None, patience: int = 20, extra: dict | None = None,
-          on_iteration=None, expert=None, bc: dict | None = None) -> dict:
+          on_iteration=None, expert=None, bc: dict | None = None, validate=None, val_interval: int = 10,
+          val_patience: int = 3) -> dict:
     """Train (or resume) a PPO policy; returns ``{"iterations", "steps", "best_success", "wall_s", ...}``.
 
     Args:
@@ -65,6 +66,10 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
         on_iteration: called with each metrics row (e.g. a W&B logger).
         expert: a policy to warm-start from by :func:`behavior_clone` (fresh runs only); ``bc`` its
             keyword arguments (``steps``, ``epochs``, ``noise``).
+        validate: ``checkpoint path -> score`` on held-out validation episodes, called every
+            ``val_interval`` iterations (and before the first): the best is kept as ``val_best.pt``
+            and training stops after ``val_patience`` validations without improvement, or at a
+            perfect score (early stopping, as the paper's fine-tuning).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -98,6 +103,10 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
     started = time.perf_counter()
     bar = tqdm(total=iterations, initial=start_it, desc="ppo", unit="it", dynamic_ncols=True)
     stopped_early = False
+    val = _Validation(validate, out, val_patience)
+    if validate is not None and start_it == 0:
+        _save(runner, out / "val_current.pt", -1, {**cfg, "best_success": best})
+        val.check(-1, out / "val_current.pt")
     try:
         for it in range(start_it, iterations):
             before = len(env.episodes)
@@ -120,6 +129,12 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
                 _save(runner, out / "best.pt", it, {**cfg, "best_success": best})
             if (it + 1) % save_interval == 0 or it + 1 == iterations:
                 _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
+            if validate is not None and (it + 1) % val_interval == 0:
+                _save(runner, out / "val_current.pt", it, {**cfg, "best_success": best})
+                if val.check(it, out / "val_current.pt"):
+                    _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
+                    stopped_early = True
+                    break
             if target_success is not None and len(recent) == recent.maxlen and rate >= target_success:
                 _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
                 stopped_early = True
@@ -128,7 +143,33 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
         bar.close()
     final_it = rows[-1]["iteration"] if rows else start_it
     return {"iterations": int(final_it) + 1, "steps": (int(final_it) + 1) * steps_per_it, "best_success": best,
-            "wall_s": time.perf_counter() - started, "stopped_early": stopped_early, "out_dir": str(out)}
+            "wall_s": time.perf_counter() - started, "stopped_early": stopped_early, "out_dir": str(out),
+            "validation": val.history}
+
+
+class _Validation:
+    """Early stopping on validation episodes: keeps ``val_best.pt``, counts validations without gain."""
+
+    def __init__(self, validate, out: Path, patience: int):
+        self.validate, self.out, self.patience = validate, out, int(patience)
+        state = out / "validation.json"
+        saved = json.loads(state.read_text()) if state.exists() else {}
+        self.history: list = saved.get("history", [])
+        self.best = max((h[1] for h in self.history), default=-np.inf)
+        self.stale = saved.get("stale", 0)
+
+    def check(self, it: int, checkpoint: Path) -> bool:
+        """Validate ``checkpoint``; True when training should stop."""
+        score = float(self.validate(checkpoint))
+        self.history.append([it, score])
+        if score > self.best:
+            self.best, self.stale = score, 0
+            checkpoint.replace(self.out / "val_best.pt")
+        else:
+            self.stale += 1
+        write_json(self.out / "validation.json", {"history": self.history, "stale": self.stale, "best": self.best})
+        log.info("validation at iteration %d: %.3f (best %.3f)", it + 1, score, self.best)
+        return self.best >= 1.0 or self.stale >= self.patience
 
 
 def behavior_clone(runner: OnPolicyRunner, env: TaskVecEnv, expert, steps: int, epochs: int = 50,

@@ -51,7 +51,7 @@ def test_report_cli_tables_and_csv(tmp_path):
     (tmp_path / "2_x" / "error.txt").write_text("boom")
     out = subprocess.run([sys.executable, "-m", "grt.report", str(tmp_path), "--csv", str(tmp_path / "t.csv")],
                          capture_output=True, text=True, check=True).stdout
-    assert "| grasp | heuristic + topdm | 2 | 40.0 |" in out
+    assert "| grasp | - | heuristic + topdm | 2 | 40.0 |" in out  # old summaries name no policy
     assert "1 failed job" in out
     assert (tmp_path / "t.csv").read_text().count("\n") == 3
 

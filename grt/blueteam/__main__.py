@@ -1,0 +1,208 @@
+"""``python -m grt.blueteam run=<red-team run folder>``: fine-tune the run's policy on its CrashShapes.
+
+Writes into its own folder (``outputs/blueteam/<task>/<object>/<time>``): ``policy.pt`` (the
+fine-tuned checkpoint, config inside), ``metrics.csv`` and ``curve.png`` (training),
+``validation.json`` (early stopping), ``scores.json`` (every geometry before and after, per trial),
+``table3.json`` / ``table3.md`` (the paper's Table 3 columns plus held-out shapes) and, with
+``blueteam.rered.enabled``, a re-red-team run of the fine-tuned policy under ``rered/`` with the
+original run's budget and seed. ``resume=<that folder>`` continues a killed fine-tune.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import hydra
+import numpy as np
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+import grt.config  # noqa: F401 - schemas and resolvers
+
+log = logging.getLogger("grt.blueteam")
+
+
+def _plain(node) -> dict:
+    return OmegaConf.to_container(node, resolve=True)
+
+
+def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
+    """Run one blue-team study (see the module docstring); returns ``{"rows": [...], ...}``."""
+    from grt.blueteam.core import (
+        Geometry,
+        distinct,
+        load_run,
+        name_of,
+        select_crashshapes,
+        trainable_checkpoint,
+        write_table,
+    )
+    from grt.eval.collision import make_collision
+    from grt.geometry.deform import ShapeDeformer
+    from grt.geometry.mesh import load_mesh
+    from grt.policies.rsl_rl import load_checkpoint
+    from grt.redteam import episode_seeds
+    from grt.selectors.base import HandleSet
+
+    bt = cfg.blueteam
+    run_dir = Path(cfg.run)
+    run_cfg, records = load_run(run_dir)
+    task, policy_cfg = _plain(run_cfg.task), _plain(run_cfg.policy)
+    checkpoint = trainable_checkpoint(policy_cfg)
+    ckpt = load_checkpoint(checkpoint)
+    nominal = load_mesh(run_cfg.object)
+    handles = HandleSet.from_json((run_dir / "handles.json").read_text())
+    deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, lam=run_cfg.deformer.lam,
+                             method=run_cfg.deformer.method)
+    ev_cfg = run_cfg.evaluator
+    collision = make_collision(ev_cfg.collision, nominal, _plain(ev_cfg.coacd), f"{cfg.paths.cache_dir}/coacd",
+                               ev_cfg.max_hull_vertices)
+    s0 = float(next(r["score"] for r in records if r["iteration"] == 0))
+    train_recs = select_crashshapes(records, bt.crashshapes, bt.top_k, bt.failing_below, s0)
+    failing = [r for r in select_crashshapes(records, "all-failing", 0, bt.failing_below, s0)]
+    held_recs = distinct(failing, train_recs, bt.heldout.candidates)
+
+    def geometry(rec, role, theta=None, name=None):
+        mesh = deformer.meshes(np.asarray(rec["theta"] if theta is None else theta)[None])[0]
+        return Geometry(name or name_of(rec), mesh, collision.parts(mesh), role, rec.get("score"))
+
+    crash = [geometry(r, "crashshape") for r in train_recs]
+    nominal_geo = Geometry("nominal", nominal, collision.parts(nominal), "nominal", s0)
+    rng = np.random.default_rng(int(bt.seed))
+    nearby = [geometry(r, "heldout", np.asarray(r["theta"]) + rng.normal(0.0, bt.heldout.sigma,
+                                                                          np.shape(r["theta"])),
+                       f"near_{name_of(r)}_{j}")
+              for r in train_recs for j in range(bt.heldout.nearby)]
+    heldout = [geometry(r, "heldout") for r in held_recs] + nearby
+    log.info("blue-teaming %s: %d CrashShape(s) %s, %d held-out shapes", checkpoint, len(crash),
+             [g.name for g in crash], len(heldout))
+
+    test_seeds = episode_seeds(int(run_cfg.budget.seed) + 1000, int(bt.eval_trials))
+    val_seeds = episode_seeds(int(run_cfg.budget.seed) + 2000, int(bt.val_trials))
+    everything = [nominal_geo, *crash, *heldout]
+    scores_file = out_dir / "scores.json"
+    scores = json.loads(scores_file.read_text()) if scores_file.exists() else {}
+    if "before" not in scores:
+        scores["before"] = _score(task, policy_cfg, everything, test_seeds, cfg.workers)
+        scores_file.write_text(json.dumps(scores, indent=1))
+
+    fine_tuned = _fine_tune(cfg, out_dir, task, ckpt, checkpoint, [nominal_geo, *crash], val_seeds)
+    after_policy = {**policy_cfg, "checkpoint": str(fine_tuned)}
+    if "after" not in scores:
+        scores["after"] = _score(task, after_policy, everything, test_seeds, cfg.workers)
+        scores_file.write_text(json.dumps(scores, indent=1))
+
+    before, after = scores["before"], scores["after"]
+    mean = lambda side, geos: float(np.mean([side[g.name]["score"] for g in geos])) if geos else float("nan")  # noqa: E731
+    label = "joint" if len(crash) > 1 else crash[0].name
+    rows = [{"policy": Path(checkpoint).stem, "geometry": g.name, "fine_tune": label,
+             "orig": before[g.name]["score"], "blue": after[g.name]["score"],
+             "nominal_before": before["nominal"]["score"], "nominal_after": after["nominal"]["score"],
+             "heldout_before": mean(before, heldout), "heldout_after": mean(after, heldout),
+             "red_team_score": g.red_team_score, "trials": int(bt.eval_trials)} for g in crash]
+    write_table(out_dir, rows, str(run_cfg.task.score))
+    result = {"run": str(run_dir), "checkpoint": str(fine_tuned), "rows": rows,
+              "heldout": [g.name for g in heldout]}
+    if bt.rered.enabled:
+        result["rered"] = _rered(run_cfg, run_dir, fine_tuned, out_dir / "rered")
+    (out_dir / "blueteam.json").write_text(json.dumps(result, indent=1, default=str))
+    return result
+
+
+def _score(task: dict, policy: dict, geometries, seeds: list[int], workers: int) -> dict:
+    """Every geometry's score and per-trial outcomes on the same seeds."""
+    from grt.eval.evaluator import SimEvaluator
+
+    with SimEvaluator(task=task, policy=policy, workers=workers, collision="coacd", progress=True) as ev:
+        results = ev.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries])
+    return {g.name: {"score": r.score, "role": g.role, "outcomes": r.outcomes} for g, r in zip(geometries, results,
+                                                                                             strict=True)}
+
+
+def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoint: str, shapes, val_seeds) -> Path:
+    """PPO on the mix (resumable), early-stopped on validation episodes; returns the policy file."""
+    import copy
+
+    from grt.eval.pool import build_session
+    from grt.policies.rsl_rl import RslRlPolicy
+    from grt.rl.train import export_policy, plot_curve, train
+    from grt.rl.vec_env import Shape, TaskVecEnv
+
+    bt = cfg.blueteam
+    policy_file = out_dir / "policy.pt"
+    if policy_file.exists():
+        return policy_file
+    train_cfg = copy.deepcopy(ckpt["grt"]["train_cfg"])
+    train_cfg["algorithm"].update(_plain(bt.algorithm))
+    train_cfg["num_steps_per_env"] = int(bt.num_steps_per_env)
+    share = float(bt.nominal_share)
+    weights = [share] + [(1.0 - share) / (len(shapes) - 1)] * (len(shapes) - 1)
+    env = TaskVecEnv(task, [Shape.of(g.mesh, g.parts, g.name) for g in shapes], num_envs=bt.num_envs,
+                     workers=cfg.workers, seed=int(bt.seed), weights=weights, max_steps=bt.max_steps)
+    session = build_session(task, None)
+
+    def validate(path: Path) -> float:
+        session.policy = RslRlPolicy(str(path), task=task["name"])
+        scores = []
+        for g in shapes:
+            session.load_object(g.mesh, g.parts)
+            scores.append(np.mean([session.run_trial(s).score for s in val_seeds]))
+        return float(np.mean(scores))
+
+    try:
+        result = train(env, train_cfg, out_dir, task["name"], task, iterations=int(bt.iterations),
+                       init_checkpoint=checkpoint, save_interval=5,
+                       extra={**{k: v for k, v in ckpt["grt"].items() if k not in ("train_cfg", "task_cfg",
+                                                                                   "obs_spec", "num_actions",
+                                                                                   "task")},
+                              "blueteam": {"from": checkpoint, "shapes": [g.name for g in shapes],
+                                           "weights": weights}},
+                       validate=validate, val_interval=int(bt.val_interval), val_patience=int(bt.val_patience))
+    finally:
+        env.close()
+        session.close()
+    plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title="blue-team fine-tune")
+    best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
+    return export_policy(best, policy_file, metrics={k: v for k, v in result.items() if k != "validation"})
+
+
+def _rered(run_cfg: DictConfig, run_dir: Path, checkpoint: Path, out: Path) -> dict:
+    """A red-team run against the fine-tuned policy with the original budget and seed."""
+    from grt.run import run
+
+    cfg = OmegaConf.create(OmegaConf.to_container(run_cfg, resolve=False))
+    cfg.policy.checkpoint = str(checkpoint)
+    cfg.paths.output_dir = str(out)
+    cfg.resume = None
+    original = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() else {}
+    start = time.perf_counter()
+    summary = run(cfg)
+    keys = ("s0", "best_score", "final_drop", "iter_at_50", "reached_50", "auc")
+    return {"before": {k: original.get(k) for k in keys}, "after": {k: summary.get(k) for k in keys},
+            "wall_s": round(time.perf_counter() - start, 1), "folder": str(out)}
+
+
+@hydra.main(config_path="../../conf", config_name="blueteam", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    from grt.errors import exit_on_user_error
+
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    with exit_on_user_error():
+        if cfg.run is None:
+            from grt.blueteam.core import BlueTeamError
+
+            raise BlueTeamError("give the red-team run to blue-team: python -m grt.blueteam run=<run folder>")
+        result = blueteam(cfg, out_dir)
+    print((out_dir / "table3.md").read_text())
+    if "rered" in result:
+        r = result["rered"]
+        print(f"re-red-team: Final Drop {r['before']['final_drop']} -> {r['after']['final_drop']}, "
+              f"Iter@50% {r['before']['iter_at_50']} -> {r['after']['iter_at_50']}")
+    print(f"files in {out_dir}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,121 @@
+"""Blue-teaming (paper Sec. "Blue-teaming", Table 3): fine-tune a red-teamed policy on its CrashShapes.
+
+From a red-team run folder: the run's own resolved task and policy, its nominal object, its handles
+and journal (each CrashShape is re-made from its journaled theta, bit for bit). The policy is
+fine-tuned with PPO (rsl-rl) on a mix of CrashShapes and the nominal object (each episode draws one
+shape; ``nominal_share`` of them the nominal), with early stopping on validation episodes, and then
+scored before and after on the same held-out episodes: each CrashShape, the nominal object, and
+held-out nearby shapes (failing candidates of the run that were not trained on, and fresh small
+deformations of the CrashShapes).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
+
+
+class BlueTeamError(ValueError):
+    """A red-team run that cannot be blue-teamed (no journal, no CrashShape, an untrainable policy)."""
+
+
+@dataclass
+class Geometry:
+    """A named shape of the study: mesh (m), its convex parts, and where it comes from."""
+
+    name: str
+    mesh: trimesh.Trimesh
+    parts: list[np.ndarray]
+    role: str  # "crashshape" | "nominal" | "heldout"
+    red_team_score: float | None = None
+
+
+def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
+    """The red-team run's config (as it ran) and its journal records.
+
+    Raises:
+        BlueTeamError: not a finished red-team run folder.
+    """
+    run_dir = Path(run_dir)
+    cfg_file, journal = run_dir / ".hydra" / "config.yaml", run_dir / "journal.jsonl"
+    if not cfg_file.exists() or not journal.exists() or not (run_dir / "handles.json").exists():
+        raise BlueTeamError(f"{run_dir} is not a red-team run folder (it needs .hydra/config.yaml, handles.json and "
+                            "journal.jsonl): give run=outputs/<task>/<object>/<selector>-<optimizer>/<time>")
+    import grt.config  # noqa: F401 - resolvers the run's config uses
+    from grt.journal import Journal
+
+    return OmegaConf.load(cfg_file), Journal(journal).records
+
+
+def trainable_checkpoint(policy_cfg: dict) -> str:
+    """The rsl-rl checkpoint path of the run's policy.
+
+    Raises:
+        BlueTeamError: the policy is not an rsl-rl policy (an analytic planner, a user's predictor).
+    """
+    target = str(policy_cfg.get("_target_", ""))
+    if not target.endswith("RslRlPolicy") or "checkpoint" not in policy_cfg:
+        raise BlueTeamError(f"the run's policy ({target or 'unknown'}) cannot be fine-tuned: blue-teaming trains an "
+                            "rsl-rl policy with PPO (e.g. policy=insertion_state); red-team one of those first")
+    return str(policy_cfg["checkpoint"])
+
+
+def select_crashshapes(records: list[dict], mode: str, top_k: int, failing_below: float, s0: float) -> list[dict]:
+    """The journal records trained on: ``top1``, ``topk`` or ``all-failing`` (score < failing_below x S0)."""
+    from grt.outputs import crash_records
+
+    ranked = crash_records(records, len(records))
+    failing = [r for r in ranked if r["score"] < failing_below * s0]
+    if mode == "top1":
+        chosen = failing[:1]
+    elif mode == "topk":
+        chosen = failing[:top_k]
+    elif mode == "all-failing":
+        chosen = failing
+    else:
+        raise BlueTeamError(f"blueteam.crashshapes={mode!r}: use top1, topk or all-failing")
+    if not chosen:
+        raise BlueTeamError(f"the run found no CrashShape scoring below {failing_below:.0%} of S0 = {s0:.2f}: "
+                            "nothing to blue-team (red-team longer, or raise blueteam.failing_below)")
+    return chosen
+
+
+def distinct(records: list[dict], exclude: list[dict], count: int) -> list[dict]:
+    """Up to ``count`` records not in ``exclude`` and not repeating a mesh already chosen."""
+    seen = {r["mesh_hash"] for r in exclude}
+    out = []
+    for r in records:
+        if r["mesh_hash"] not in seen and len(out) < count:
+            out.append(r)
+            seen.add(r["mesh_hash"])
+    return out
+
+
+def name_of(rec: dict) -> str:
+    return f"it{rec['iteration']}_c{rec['candidate']}"
+
+
+def summarize_scores(results) -> dict[str, float]:
+    return {name: float(res.score) for name, res in results.items()}
+
+
+def write_table(out_dir: Path, rows: list[dict], unit: str) -> None:
+    """``table3.json`` (the rows) and ``table3.md`` (the paper's columns and ours)."""
+    (out_dir / "table3.json").write_text(json.dumps(rows, indent=1))
+    pct = (lambda v: f"{100 * v:.1f}") if unit == "success" else (lambda v: f"{v:.3f}")
+    head = "| policy | geometry | Orig. | Blue. | Nominal before | Nominal after | Held-out before | Held-out after |"
+    lines = [f"Scores: {'success %' if unit == 'success' else unit}, same held-out episodes before and after.", "",
+             head, "|" + "---|" * 8]
+    for r in rows:
+        lines.append(f"| {r['policy']} | {r['geometry']} | {pct(r['orig'])} | {pct(r['blue'])} | "
+                     f"{pct(r['nominal_before'])} | {pct(r['nominal_after'])} | {pct(r['heldout_before'])} | "
+                     f"{pct(r['heldout_after'])} |")
+    (out_dir / "table3.md").write_text("\n".join(lines) + "\n")

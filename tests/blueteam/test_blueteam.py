@@ -1,0 +1,80 @@
+"""Blue-teaming through its CLI on a real (tiny) insertion red-team run: rows, refusal, resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = ["blueteam.iterations=2", "blueteam.num_envs=2", "blueteam.num_steps_per_env=8", "blueteam.max_steps=16",
+        "blueteam.eval_trials=2", "blueteam.val_trials=1", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
+        "blueteam.heldout.nearby=1", "blueteam.rered.enabled=false", "workers=1"]
+
+
+def _cli(module: str, *args: str, timeout: float = 900):
+    env = {**os.environ, "WANDB_MODE": "disabled"}
+    return subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def red_team_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("redteam") / "run"
+    out = _cli("grt.run", "task=insertion", "policy=insertion_state", "selector=manual", "budget=smoke",
+               "budget.sigma=0.15", "budget.trials=2", "budget.population=4", f"hydra.run.dir={run_dir}")
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    return run_dir
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team_run, tmp_path):
+    from grt.policies.rsl_rl import RslRlPolicy
+
+    out_dir = tmp_path / "bt"
+    res = _cli("grt.blueteam", f"run={red_team_run}", *TINY, f"hydra.run.dir={out_dir}")
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    rows = json.loads((out_dir / "table3.json").read_text())
+    assert rows and set(rows[0]) >= {"policy", "geometry", "orig", "blue", "nominal_before", "nominal_after",
+                                     "heldout_before", "heldout_after"}
+    assert all(0.0 <= rows[0][k] <= 1.0 for k in ("orig", "blue", "nominal_before", "nominal_after"))
+    assert "| Orig. | Blue. |" in (out_dir / "table3.md").read_text()
+    policy = RslRlPolicy(str(out_dir / "policy.pt"), task="insertion")
+    assert policy.config["blueteam"]["shapes"][0] == "nominal"
+    before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
+    after = torch.load(out_dir / "last.pt", weights_only=False)["actor_state_dict"]
+    assert any(not torch.equal(before[k], after[k]) for k in before), "PPO did not change the policy"
+    # A fine-tune killed before it finished: resume continues from last.pt, repeats no iteration.
+    (out_dir / "policy.pt").unlink()
+    scores = json.loads((out_dir / "scores.json").read_text())
+    scores.pop("after")
+    (out_dir / "scores.json").write_text(json.dumps(scores))
+    (out_dir / "val_best.pt").unlink(missing_ok=True)
+    res = _cli("grt.blueteam", f"run={red_team_run}", *TINY, "blueteam.iterations=4", "blueteam.val_patience=99",
+               f"resume={out_dir}")
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    iterations = [int(line.split(",")[0]) for line in (out_dir / "metrics.csv").read_text().splitlines()[1:]]
+    assert iterations == [0, 1, 2, 3]
+
+
+def test_an_untrainable_policy_is_refused_in_one_line(tmp_path):
+    from omegaconf import OmegaConf
+
+    from tests.runner.conftest import compose_run
+
+    run_dir = tmp_path / "grasp_run"
+    (run_dir / ".hydra").mkdir(parents=True)
+    cfg = compose_run(["task=grasp", "policy=antipodal"])
+    (run_dir / ".hydra" / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+    (run_dir / "handles.json").write_text('{"handles": [0], "anchors": [1, 2, 3]}')
+    (run_dir / "journal.jsonl").write_text("")
+    res = _cli("grt.blueteam", f"run={run_dir}", f"hydra.run.dir={tmp_path / 'bt'}")
+    assert res.returncode == 2 and "cannot be fine-tuned" in res.stderr and "Traceback" not in res.stderr, res.stderr
+    res = _cli("grt.blueteam", f"run={tmp_path / 'nothing'}", f"hydra.run.dir={tmp_path / 'bt2'}")
+    assert res.returncode == 2 and "not a red-team run folder" in res.stderr
