@@ -14,7 +14,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["blueteam.iterations=2", "blueteam.num_envs=2", "blueteam.num_steps_per_env=8", "blueteam.max_steps=16",
         "blueteam.eval_trials=2", "blueteam.val_trials=1", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
-        "blueteam.heldout.nearby=1", "blueteam.rered.enabled=false", "workers=1"]
+        "blueteam.heldout.nearby=1", "workers=1"]
 
 
 def _cli(module: str, *args: str, timeout: float = 900):
@@ -45,6 +45,9 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
                                      "heldout_before", "heldout_after"}
     assert all(0.0 <= rows[0][k] <= 1.0 for k in ("orig", "blue", "nominal_before", "nominal_after"))
     assert "| Orig. | Blue. |" in (out_dir / "table3.md").read_text()
+    rered = json.loads((out_dir / "blueteam.json").read_text())["rered"]  # same budget and seed as the run
+    assert set(rered["before"]) == set(rered["after"]) and rered["after"]["s0"] is not None
+    assert (out_dir / "rered" / "summary.json").exists()
     policy = RslRlPolicy(str(out_dir / "policy.pt"), task="insertion")
     assert policy.config["blueteam"]["shapes"][0] == "nominal"
     before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
@@ -57,7 +60,7 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     (out_dir / "scores.json").write_text(json.dumps(scores))
     (out_dir / "val_best.pt").unlink(missing_ok=True)
     res = _cli("grt.blueteam", f"run={red_team_run}", *TINY, "blueteam.iterations=4", "blueteam.val_patience=99",
-               f"resume={out_dir}")
+               "blueteam.rered.enabled=false", f"resume={out_dir}")
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     iterations = [int(line.split(",")[0]) for line in (out_dir / "metrics.csv").read_text().splitlines()[1:]]
     assert iterations == [0, 1, 2, 3]
