@@ -16,7 +16,7 @@ log = logging.getLogger("grt")
 def user_errors() -> tuple[type[BaseException], ...]:
     """The exception types that mean "the input is wrong" (imported lazily: no simulator import)."""
     from grt.blueteam.core import BlueTeamError
-    from grt.eval.collision import CollisionError
+    from grt.evaluators.collision import CollisionError
     from grt.geometry.mesh import MeshError
     from grt.journal import JournalError
     from grt.objects import UnknownObjectError

@@ -19,10 +19,10 @@ import trimesh
 from grt.geometry.mesh import mesh_hash
 from grt.journal import Journal, JournalError
 from grt.optimizers.base import Optimizer
-from grt.optimizers.budget import project_to_budget, smoothness_score
+from grt.optimizers.smoothness import project_to_budget, smoothness_score
 
 if TYPE_CHECKING:
-    from grt.eval.base import Evaluator
+    from grt.evaluators.base import Evaluator
     from grt.geometry.deform import ShapeDeformer
 
 

@@ -32,7 +32,7 @@ def _plain(node) -> dict:
 
 
 def run(cfg: DictConfig, out_dir: Path) -> dict:
-    from grt.eval.collision import make_collision
+    from grt.evaluators.collision import make_collision
     from grt.geometry.mesh import load_mesh
     from grt.rl.train import export_policy, plot_curve, train, write_json
     from grt.rl.vec_env import Shape, TaskVecEnv
@@ -74,7 +74,7 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
 
 def _evaluate(cfg: DictConfig, policy_file: Path, mesh, out_dir: Path) -> dict:
     """Score the trained policy on ``eval_trials`` seeded episodes (the red-team run's seeds for seed 42)."""
-    from grt.eval.evaluator import SimEvaluator
+    from grt.evaluators.sim import SimEvaluator
     from grt.redteam import episode_seeds
     from grt.rl.train import write_json
 

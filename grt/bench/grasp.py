@@ -51,7 +51,7 @@ def deformed_candidates(mesh, count: int, sigma: float, seed: int = 0):
 
 def bench_collision(nominal, candidates, coacd: dict, run_coacd: bool) -> tuple[dict, object]:
     """Timings (ms) and volume IoUs of the fast and the CoACD collision geometry, and the fast maker."""
-    from grt.eval.collision import CoacdCollision, CoacdParams, make_collision, volume_iou
+    from grt.evaluators.collision import CoacdCollision, CoacdParams, make_collision, volume_iou
 
     fast = make_collision("fast", nominal, coacd=coacd)
     times = []
@@ -76,7 +76,7 @@ def bench_raw_sim(task: dict, policy: dict, mesh, parts, trials: int, hold_steps
 
     import torch
 
-    from grt.eval.pool import THREAD_VARIABLES, build_session
+    from grt.evaluators.pool import THREAD_VARIABLES, build_session
 
     os.environ.update({k: "1" for k in THREAD_VARIABLES})  # read when the renderer starts
     torch.set_num_threads(1)

@@ -5,7 +5,7 @@ Measures, in one run, on the nominal plug with a policy (default: the shipped st
 * raw simulation speed: ``env.step`` calls per second of GRT-Insert-v1 in this process, with the
   arm servoing to the target (one control step = 5 physics steps at 100 Hz);
 * trials per second in this process (one session, no worker pool): the baseline;
-* trials per second through :class:`grt.eval.evaluator.SimEvaluator` with ``W`` worker processes,
+* trials per second through :class:`grt.evaluators.sim.SimEvaluator` with ``W`` worker processes,
   after start-up, and its speed-up over the in-process baseline measured in the same run.
 
 The last line printed is one JSON object with every figure.
@@ -33,9 +33,9 @@ def main(argv: list[str] | None = None) -> None:
 
     from omegaconf import OmegaConf
 
-    from grt.eval.collision import make_collision
-    from grt.eval.evaluator import SimEvaluator
-    from grt.eval.pool import build_session
+    from grt.evaluators.collision import make_collision
+    from grt.evaluators.pool import build_session
+    from grt.evaluators.sim import SimEvaluator
     from grt.geometry.mesh import load_mesh
     from grt.policies.servo import ServoInsertionPolicy
     from grt.redteam import episode_seeds

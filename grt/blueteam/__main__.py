@@ -40,7 +40,7 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
         trainable_checkpoint,
         write_table,
     )
-    from grt.eval.collision import make_collision
+    from grt.evaluators.collision import make_collision
     from grt.geometry.deform import ShapeDeformer
     from grt.geometry.mesh import load_mesh
     from grt.policies.rsl_rl import load_checkpoint
@@ -114,7 +114,7 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
 
 def _score(task: dict, policy: dict, geometries, seeds: list[int], workers: int) -> dict:
     """Every geometry's score and per-trial outcomes on the same seeds."""
-    from grt.eval.evaluator import SimEvaluator
+    from grt.evaluators.sim import SimEvaluator
 
     with SimEvaluator(task=task, policy=policy, workers=workers, collision="coacd", progress=True) as ev:
         results = ev.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries])
@@ -126,7 +126,7 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
     """PPO on the mix (resumable), early-stopped on validation episodes; returns the policy file."""
     import copy
 
-    from grt.eval.pool import build_session
+    from grt.evaluators.pool import build_session
     from grt.policies.rsl_rl import RslRlPolicy
     from grt.rl.train import export_policy, plot_curve, train
     from grt.rl.vec_env import Shape, TaskVecEnv

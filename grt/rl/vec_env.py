@@ -47,7 +47,7 @@ class _EnvGroup:
 
     def __init__(self, task: dict, shapes: list[Shape], weights: np.ndarray, env_ids: list[int], seed: int,
                  max_steps: int | None):
-        from grt.eval.pool import build_session
+        from grt.evaluators.pool import build_session
 
         self.shapes, self.weights = shapes, weights
         self.sessions, self.current = [], []

@@ -41,12 +41,14 @@ def preflight(task: dict, policy, mesh) -> None:
         grt.policies.rsl_rl.CheckpointError: a policy for another task/observation, naming both sides.
         grt.tasks.socket.PlugFitError (or the task's own error): an object the task cannot use.
     """
-    session = get_task(task["name"])
+    from hydra.utils import get_class
+
+    session = get_class(task["session"]["_target_"])  # a variant YAML (grasp_2cam) names the same class
     session.check_object(mesh, **{k: v for k, v in task["session"].items() if k != "_target_"})
     check = getattr(policy, "check", None)
     if check is not None:
         spec = session.observation_spec(**{k: v for k, v in task["session"].items() if k == "cloud_points"})
-        check(task["name"], spec, session.num_actions)
+        check(getattr(session, "task_name", "") or task["name"], spec, session.num_actions)
 
 
 __all__ = ["FAILURE_MODES", "TASKS", "EpisodeSession", "TaskSession", "TrialOutcome", "get_task", "preflight"]

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from grt.eval.base import CandidateResult, Evaluator
+from grt.evaluators.base import CandidateResult, Evaluator
 from grt.geometry.deform import ShapeDeformer
 from grt.geometry.mesh import load_mesh
 from grt.journal import Journal, JournalError

@@ -54,7 +54,7 @@ def test_a_plug_too_wide_for_the_gripper_is_refused_before_simulation():
 @pytest.fixture(scope="module")
 def servo_session():
     pytest.importorskip("mani_skill")
-    from grt.eval.collision import make_collision
+    from grt.evaluators.collision import make_collision
     from grt.policies.servo import ServoInsertionPolicy
     from grt.tasks.insertion import InsertionSession
 
@@ -82,7 +82,7 @@ def test_servo_inserts_the_nominal_plug_and_trials_repeat(servo_session):
 @pytest.mark.sim
 def test_a_plug_shifted_in_the_grip_is_named_a_failure(servo_session):
     """A plug whose grip bulges 7 mm on one side sits off-center in the fingers: the servo misses."""
-    from grt.eval.collision import make_collision
+    from grt.evaluators.collision import make_collision
 
     session, plug, _ = servo_session
     bent = plug.copy()
@@ -119,7 +119,7 @@ def test_shipped_checkpoints_load_and_insert(name, servo_session):
 @pytest.mark.sim
 @pytest.mark.slow
 def test_ppo_iterations_on_the_real_insertion_env_update_the_policy(tmp_path):
-    from grt.eval.collision import make_collision
+    from grt.evaluators.collision import make_collision
     from grt.policies.rsl_rl import RslRlPolicy
     from grt.rl.train import export_policy, train
     from grt.rl.vec_env import Shape, TaskVecEnv

@@ -11,7 +11,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from grt.bench.grasp import compose
-from grt.eval.evaluator import SimEvaluator
+from grt.evaluators.sim import SimEvaluator
 from grt.geometry.mesh import load_mesh, mesh_hash
 from grt.tasks.base import FAILURE_MODES
 

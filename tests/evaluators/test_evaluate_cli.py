@@ -19,7 +19,7 @@ def test_evaluate_composes_and_scores_with_a_toy_session(toy_configs, u_mesh, tm
     u_mesh.export(path)
     cfg = compose([f"object={path}", "budget=smoke", "budget.trials=4", "evaluator.workers=1",
                    "evaluator.progress=false", f"evaluator.cache_dir={tmp_path / 'coacd'}"])
-    assert cfg.evaluator._target_ == "grt.eval.evaluator.SimEvaluator"
+    assert cfg.evaluator._target_ == "grt.evaluators.sim.SimEvaluator"
     task, policy = toy_configs()
     cfg.task.session = OmegaConf.create(task["session"])
     cfg.policy = OmegaConf.create(policy)

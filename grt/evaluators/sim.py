@@ -1,7 +1,7 @@
 """SimEvaluator: candidate meshes -> convex parts -> seeded trials in worker processes -> scores.
 
 Per :meth:`SimEvaluator.evaluate` call: every candidate gets its collision parts (the nominal
-decomposition transported through the deformation, or CoACD, see :mod:`grt.eval.collision`), then
+decomposition transported through the deformation, or CoACD, see :mod:`grt.evaluators.collision`), then
 its trials are split into chunks of consecutive seeds, one chunk per job, so that even one candidate
 keeps every worker busy; a worker loads a candidate's object once per chunk. Every candidate runs
 the same seeds (common random numbers), and a trial's outcome depends only on (mesh, seed), so the
@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from grt.eval.base import CandidateResult, Evaluator
-from grt.eval.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
-from grt.eval.pool import Job, WorkerPool, sim_error
+from grt.evaluators.base import CandidateResult, Evaluator
+from grt.evaluators.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
+from grt.evaluators.pool import Job, WorkerPool, sim_error
 from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)
@@ -37,7 +37,7 @@ class SimEvaluator(Evaluator):
         collision: ``"fast"`` (transport the nominal CoACD decomposition; needs ``nominal``) or
             ``"coacd"`` (CoACD per candidate, cached by content).
         nominal: the nominal mesh (meters), for ``collision="fast"``.
-        coacd: :class:`grt.eval.collision.CoacdParams` fields to override.
+        coacd: :class:`grt.evaluators.collision.CoacdParams` fields to override.
         cache_dir: CoACD cache folder (``None``: ``$GRT_CACHE_DIR/coacd`` or ``~/.cache/grt/coacd``).
         max_hull_vertices: cap on each convex part's vertex count (64: GPU PhysX).
         chunk_size: trials per job; ``None`` splits each candidate's seeds over the workers.
@@ -71,7 +71,7 @@ class SimEvaluator(Evaluator):
     # ------------------------------------------------------------------------------- interface
     def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int],
                  parts: list[list[np.ndarray]] | None = None) -> list[CandidateResult]:
-        """Score every mesh on the same seeds; see :meth:`grt.eval.base.Evaluator.evaluate`.
+        """Score every mesh on the same seeds; see :meth:`grt.evaluators.base.Evaluator.evaluate`.
 
         ``parts`` gives each mesh's convex parts when the caller already has them (else they are made).
         """

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from grt.eval.base import SIM_ERROR
+from grt.evaluators.base import SIM_ERROR
 from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)

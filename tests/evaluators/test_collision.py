@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from grt.eval.collision import (
+from grt.evaluators.collision import (
     CoacdCollision,
     CollisionError,
     TransportedCollision,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from grt.eval.evaluator import SimEvaluator
+from grt.evaluators.sim import SimEvaluator
 
 SEEDS = [11, 12, 13, 14, 15, 16]
 

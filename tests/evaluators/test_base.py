@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from grt.eval.base import CandidateResult
-from grt.eval.pool import sim_error
+from grt.evaluators.base import CandidateResult
+from grt.evaluators.pool import sim_error
 from grt.tasks.base import TrialOutcome
 
 
