@@ -38,7 +38,7 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
     from grt.rl.vec_env import Shape, TaskVecEnv
 
     mesh = load_mesh(cfg.object)
-    collision = make_collision("coacd", None, None, f"{cfg.paths.cache_dir}/coacd", 64)
+    collision = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64)  # as the evaluator
     parts = collision.parts(mesh)
     task, train_cfg = _plain(cfg.task), _plain(cfg.train)
     env = TaskVecEnv(task, [Shape.of(mesh, parts, str(cfg.object))], num_envs=train_cfg["num_envs"],

@@ -43,7 +43,8 @@ def main(argv: list[str] | None = None) -> None:
     cfg = compose(["task=insertion", f"policy={args.policy}", f"object={args.object}"])
     task, policy_cfg = (OmegaConf.to_container(cfg[k], resolve=True) for k in ("task", "policy"))
     mesh = load_mesh(cfg.object)
-    parts = make_collision("coacd", None, None, f"{cfg.paths.cache_dir}/coacd", 64).parts(mesh)
+    # the parts the evaluator simulates the nominal plug with (its "fast" collision), for both measurements
+    parts = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64).parts(mesh)
     seeds = episode_seeds(42, args.trials)
 
     session = build_session(task, policy_cfg)
