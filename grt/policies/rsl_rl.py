@@ -68,7 +68,8 @@ class RslRlPolicy(Policy):
     Args:
         checkpoint: path of the ``.pt`` file.
         task: the task name the policy must have been trained for (``None``: not checked here).
-        deterministic: act with the mean action (evaluation) instead of sampling.
+        deterministic: act with the mean action (evaluation; the default) instead of sampling from
+            the policy's distribution (torch's global generator, seeded per episode).
         device: torch device.
     """
 
@@ -89,7 +90,6 @@ class RslRlPolicy(Policy):
             raise CheckpointError(f"checkpoint {self.path}: weights do not fit the stored model config: {err}") from err
         self.actor.to(device).eval()
         self.device, self.deterministic = device, bool(deterministic)
-        self._generator = torch.Generator().manual_seed(0)
 
     @property
     def task(self) -> str:
@@ -117,7 +117,8 @@ class RslRlPolicy(Policy):
                                   f"{num_actions}")
 
     def reset(self, seed: int) -> None:
-        self._generator.manual_seed(int(seed))
+        if not self.deterministic:
+            torch.manual_seed(int(seed))  # a sampled episode is still a function of its seed
 
     @torch.inference_mode()
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:

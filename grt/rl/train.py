@@ -1,7 +1,7 @@
 """PPO training with rsl-rl's ``OnPolicyRunner`` on a :class:`~grt.rl.vec_env.TaskVecEnv`, resumable.
 
 :func:`train` runs the runner one iteration at a time so that it can (1) show a progress bar,
-(2) write ``metrics.csv`` (one row per iteration: reward, episode success rate, losses, seconds),
+(2) write ``metrics.csv`` (one row per iteration: episode success rate, return, losses, seconds),
 (3) save a checkpoint with the GRT config inside every ``save_interval`` iterations (``last.pt``)
 and keep the best by training success rate (``best.pt``), (4) resume a killed run from ``last.pt``,
 and (5) stop early once a target success rate has held for ``patience`` iterations. The shipped policy
@@ -27,7 +27,7 @@ from grt.rl.vec_env import TaskVecEnv
 
 log = logging.getLogger(__name__)
 FIELDS = ["iteration", "steps", "success_rate", "episodes", "mean_return", "episode_steps", "value_loss",
-          "surrogate_loss", "entropy", "action_std", "learning_rate", "collect_s", "learn_s"]
+          "surrogate_loss", "entropy", "action_std", "learning_rate", "iteration_s"]
 
 
 def grt_config(task_name: str, env: TaskVecEnv, train_cfg: dict, task_cfg: dict, extra: dict | None = None) -> dict:
@@ -256,7 +256,7 @@ def _row(it: int, steps_per_it: int, ended: list[dict], runner: OnPolicyRunner, 
             "episode_steps": float(np.mean([e["length"] for e in ended])) if ended else float("nan"),
             "value_loss": losses.get("value", float("nan")), "surrogate_loss": losses.get("surrogate", float("nan")),
             "entropy": losses.get("entropy", float("nan")), "action_std": float(std.detach().mean()),
-            "learning_rate": float(runner.alg.learning_rate), "collect_s": seconds, "learn_s": 0.0}
+            "learning_rate": float(runner.alg.learning_rate), "iteration_s": seconds}
 
 
 def _read_rows(path: Path, upto: int) -> list[dict]:
@@ -271,7 +271,7 @@ def _read_rows(path: Path, upto: int) -> list[dict]:
 def _write_rows(path: Path, rows: list[dict]) -> None:
     tmp = path.with_suffix(".tmp")
     with tmp.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS)
+        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")  # rows of an older layout resume too
         w.writeheader()
         w.writerows(rows)
     tmp.replace(path)

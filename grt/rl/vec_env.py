@@ -68,7 +68,13 @@ class _EnvGroup:
             self.sessions[k].load_object(shape.mesh(), shape.parts)
             self.current[k] = index
         self.returns[k] = 0.0
-        return self.sessions[k].reset(int(rng.integers(2**31 - 1)))
+        for attempt in range(3):  # a start the robot cannot reach (IK) is skipped, not fatal
+            try:
+                return self.sessions[k].reset(int(rng.integers(2**31 - 1)))
+            except RuntimeError:
+                if attempt == 2:
+                    raise
+        raise AssertionError("unreachable")
 
     def reset(self) -> list[dict]:
         return [self._new_episode(k) for k in range(len(self.sessions))]
