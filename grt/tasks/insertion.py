@@ -25,7 +25,7 @@ import trimesh
 
 from grt.tasks.base import EpisodeSession
 from grt.tasks.insertion_env import STATE_DIM, InsertEnv  # registers GRT-Insert-v1
-from grt.tasks.socket import PlugFitError, build_socket
+from grt.tasks.socket import PlugFitError, build_socket, grip_half_width
 
 __all__ = ["InsertEnv", "InsertionSession", "PlugFitError", "plug_geometry"]
 
@@ -52,12 +52,7 @@ def plug_geometry(spec: str, head_length: float | None, grip_height: float | Non
 
 def _check_grip(mesh: trimesh.Trimesh, grip_height: float) -> None:
     """The plug has a surface at the grip height, narrow enough for the Panda's fingers."""
-    verts = np.asarray(mesh.vertices)
-    band = verts[np.abs(verts[:, 2] - grip_height) < 0.008]
-    if len(band) == 0:
-        raise PlugFitError(f"the plug has no surface within 8 mm of grip_height={grip_height} m: set "
-                           "task.session.grip_height to where the fingers should hold it (m above the tip)")
-    width = 2 * float(np.abs(band[:, 1]).max())
+    width = 2 * grip_half_width(mesh, grip_height)
     if width > MAX_GRIPPER_WIDTH - 0.004:
         raise PlugFitError(f"the plug's grip is {width * 1000:.0f} mm wide across the fingers; the Panda opens "
                            f"{MAX_GRIPPER_WIDTH * 1000:.0f} mm: use a narrower plug, or check its units")

@@ -45,7 +45,7 @@ from sapien import physx
 
 from grt.tasks.motion import PandaIK
 from grt.tasks.scene import InMemoryActorBuilder, build_object_actor
-from grt.tasks.socket import SocketGeometry, build_socket
+from grt.tasks.socket import SocketGeometry, build_socket, grip_half_width
 
 ACTION_SCALE = 0.01  # m and rad per unit action (paper: delta pose scaled by 0.01)
 REST_QPOS = np.array([0.0, -0.2847, 0.0, -2.2441, 0.0, 1.9594, np.pi / 4, 0.04, 0.04])
@@ -166,21 +166,13 @@ class InsertEnv(BaseEnv):
         self.plug_mesh = mesh
         self.plug_parts = [np.asarray(p, np.float64).reshape(-1, 3) for p in parts]
         self._plug_cloud = self._surface_cloud(mesh, self.cloud_points // 2, seed=1)
-        self._grip_half_width = self._grip_width(mesh)
+        self._grip_half_width = grip_half_width(mesh, self.grip_height)
 
     def _surface_cloud(self, mesh: trimesh.Trimesh, k: int, seed: int) -> np.ndarray:
         if k <= 0:
             return np.zeros((0, 3))
         samples, _ = trimesh.sample.sample_surface(mesh, max(20 * k, 2000), seed=seed)
         return farthest_points(np.asarray(samples), k)
-
-    def _grip_width(self, mesh: trimesh.Trimesh) -> float:
-        """Half the largest |y| of the plug within the finger pads' band (m): where the fingers start."""
-        v = np.asarray(mesh.vertices)
-        band = v[np.abs(v[:, 2] - self.grip_height) < 0.008]
-        if len(band) == 0:
-            raise ValueError(f"the plug has no surface within 8 mm of grip_height={self.grip_height} m")
-        return float(np.abs(band[:, 1]).max())
 
     # ------------------------------------------------------------------ scene
     def _load_agent(self, options: dict):

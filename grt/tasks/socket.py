@@ -42,6 +42,20 @@ class SocketGeometry:
     outer_radius: float
 
 
+def grip_half_width(plug: trimesh.Trimesh, grip_height: float, band: float = 0.008) -> float:
+    """Largest |y| (m) of the plug within ``band`` of ``grip_height``: where the fingers close on it.
+
+    Raises:
+        PlugFitError: no surface there (the fingers would close on nothing).
+    """
+    v = np.asarray(plug.vertices)
+    near = v[np.abs(v[:, 2] - grip_height) < band]
+    if len(near) == 0:
+        raise PlugFitError(f"the plug has no surface within {band * 1000:.0f} mm of grip_height={grip_height} m: "
+                           "set task.session.grip_height to where the fingers should hold it (m above the tip)")
+    return float(np.abs(near[:, 1]).max())
+
+
 def head_outline(plug: trimesh.Trimesh, head_length: float) -> np.ndarray:
     """``(P, 2)`` XY convex hull (counter-clockwise) of the plug's vertices with ``z <= head_length``.
 
