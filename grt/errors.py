@@ -1,6 +1,6 @@
 """One error path for GRT's command-line tools: a user's mistake is one line and exit code 2.
 
-Errors in what the user gave (object, mesh, journal, checkpoint, plug, VLM settings) carry a message
+Errors in what the user gave (object, mesh, journal, checkpoint, plug, VLM or score settings) carry a message
 that names the problem and the fix; :func:`exit_on_user_error` prints it without a traceback.
 """
 
@@ -21,11 +21,12 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from grt.journal import JournalError
     from grt.objects import UnknownObjectError
     from grt.policies.rsl_rl import CheckpointError
+    from grt.scores import ScoreConfigError
     from grt.selectors.client import VLMError
     from grt.tasks.socket import PlugFitError
 
     return (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError, CheckpointError, PlugFitError,
-            BlueTeamError)
+            BlueTeamError, ScoreConfigError)
 
 
 def find_user_error(exc: BaseException) -> BaseException | None:

@@ -3,7 +3,9 @@
 The object is scored on the same episode seeds a red-team run with the same ``budget.seed`` uses, so
 this reproduces a run's nominal score S0 (or re-scores a CrashShape file). The run folder gets
 ``evaluation.json`` (every trial); the console gets the figures and, as its last line, one JSON
-object: ``success_rate, score, ci95, trials, outcomes, wall_s, trials_per_s, object, mesh_hash``.
+object: ``score, ci95, score_name, score_unit, ci, success_rate, trials, outcomes, wall_s, trials_per_s,
+object, mesh_hash``. ``score`` is the task's score (the success rate of a binary task, the mean
+opening of a drawer task...), its interval by the task's ``ci`` setting (:mod:`grt.scores`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from omegaconf import DictConfig, OmegaConf
 import grt.config  # noqa: F401 - registers the config schemas and resolvers
 from grt.geometry.mesh import load_mesh, mesh_hash
 from grt.redteam import episode_seeds
+from grt.scores import ScoreSpec
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +37,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     """
     from grt.tasks import preflight
 
+    score = ScoreSpec.from_task(cfg.task)
     mesh = load_mesh(cfg.object)
     preflight(_plain(cfg.task), instantiate(cfg.policy), mesh)
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
@@ -45,7 +49,8 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
         result = ev.evaluate([mesh], seeds)[0]
         collision_s = ev.collision_s
     wall = time.perf_counter() - start
-    summary = {**result.summary(), "object": str(cfg.object), "mesh_hash": mesh_hash(mesh.vertices, mesh.faces),
+    summary = {**result.summary(ci=score.ci), **score.fields(), "object": str(cfg.object),
+               "mesh_hash": mesh_hash(mesh.vertices, mesh.faces),
                "wall_s": round(wall, 3), "worker_s": round(result.wall_s, 3),
                "trials_per_s": round(len(seeds) / wall, 4), "collision_s": round(collision_s, 4)}
     output_dir.mkdir(parents=True, exist_ok=True)
@@ -60,28 +65,34 @@ def _plain(node) -> dict:
     return OmegaConf.to_container(node, resolve=True)
 
 
-def _print_figures(summary: dict) -> None:
+def figures(summary: dict) -> str:
+    """The console lines of an :func:`evaluate` summary: the score by its name, unit and interval."""
+    spec = ScoreSpec.from_summary(summary)
     low, high = summary["ci95"]
-    print(f"object        {summary['object']}  (mesh {summary['mesh_hash']})")
-    print(f"success rate  {summary['success_rate']:.3f}  95% CI [{low:.3f}, {high:.3f}]  "
-          f"over {summary['trials']} trials")
-    print("outcomes      " + ", ".join(f"{k}: {v}" for k, v in sorted(summary["outcomes"].items())))
-    print(f"wall          {summary['wall_s']:.1f} s  ({summary['trials_per_s']:.3f} trials/s, "
-          f"worker time {summary['worker_s']:.1f} s, collision {summary['collision_s'] * 1e3:.0f} ms)")
+    fmt = (lambda v: f"{v:.3f}") if spec.binary else (lambda v: spec.fmt(v, unit=True))  # noqa: E731
+    lines = [f"object        {summary['object']}  (mesh {summary['mesh_hash']})",
+             f"{spec.label:<13} {fmt(summary['score'])}  95% CI [{fmt(low)}, {fmt(high)}] ({spec.ci})  "
+             f"over {summary['trials']} trials"]
+    if not spec.binary:
+        lines.append(f"success rate  {summary['success_rate']:.3f}")
+    lines += ["outcomes      " + ", ".join(f"{k}: {v}" for k, v in sorted(summary["outcomes"].items())),
+              f"wall          {summary['wall_s']:.1f} s  ({summary['trials_per_s']:.3f} trials/s, "
+              f"worker time {summary['worker_s']:.1f} s, collision {summary['collision_s'] * 1e3:.0f} ms)"]
+    return "\n".join(lines)
 
 
 @hydra.main(config_path="../conf", config_name="evaluate", version_base="1.3")
 def main(cfg: DictConfig) -> float:
-    """Hydra entry point; returns the success rate."""
+    """Hydra entry point; returns the task's score (the success rate of a binary task)."""
     from hydra.core.hydra_config import HydraConfig
 
     from grt.errors import exit_on_user_error
 
     with exit_on_user_error():
         summary = evaluate(cfg, HydraConfig.get().runtime.output_dir)
-    _print_figures(summary)
+    print(figures(summary))
     print(json.dumps(summary))
-    return float(summary["success_rate"])
+    return float(summary["score"])
 
 
 if __name__ == "__main__":

@@ -10,7 +10,10 @@ Conventions (stated because the paper leaves them open):
   the budget ``T`` is reported and ``reached_50`` is false (the paper's Gaussian rows read 10.00 with
   T = 10, consistent with this).
 * AUC is the trapezoid rule over ``t = 0..T`` with unit spacing, so its maximum is ``T``.
-* With ``S0 = 0`` (the policy already fails on the nominal object) relative drops are undefined:
+* Scores are any floats the task defines: a success rate in [0, 1] for binary tasks, or the mean of a
+  continuous per-trial value (e.g. a drawer opening in meters). Every metric is relative to ``S0``, so
+  it does not depend on the score's unit or range (multiplying every score by 100 changes nothing).
+* With ``S0 <= 0`` (the policy already fails on the nominal object) relative drops are undefined:
   they are reported as NaN and the summary says why.
 """
 
@@ -30,13 +33,13 @@ def degradation_curve(s0: float, iteration_scores: Sequence[Sequence[float]]) ->
         iteration_scores: ``T`` lists, the scores of the candidates of iterations ``1..T``.
 
     Returns:
-        ``(T + 1,)`` relative degradation, NaN when ``s0 == 0``.
+        ``(T + 1,)`` relative degradation, NaN when ``s0 <= 0`` (a negative ``S0`` would flip its sign).
     """
     best = [float(s0)]
     for scores in iteration_scores:  # NaN = a candidate the simulator could not score: skipped
         best.append(min([best[-1], *(float(s) for s in scores if not math.isnan(float(s)))]))
     best = np.asarray(best)
-    if s0 == 0:
+    if not s0 > 0:
         return np.full(best.shape, np.nan)
     return (s0 - best) / s0
 
@@ -97,6 +100,59 @@ def mean_interval(values: Sequence[float], z: float = 1.96) -> tuple[float, floa
         return (float("nan"), float("nan"))
     half = z * (v.std(ddof=1) / math.sqrt(v.size) if v.size > 1 else 0.0)
     return (float(v.mean() - half), float(v.mean() + half))
+
+
+def bootstrap_interval(values: Sequence[float], n_boot: int = 2000, seed: int = 0) -> tuple[float, float]:
+    """Percentile-bootstrap 95% interval of a mean (no normality assumed; skewed continuous scores).
+
+    Args:
+        values: ``(n,)`` per-trial scores.
+        n_boot: resamples with replacement.
+        seed: seeds the resampling, so the same values always give the same interval.
+
+    Returns:
+        The 2.5th and 97.5th percentiles of the ``n_boot`` resampled means (NaN without values).
+    """
+    v = np.asarray(values, np.float64)
+    if v.size == 0:
+        return (float("nan"), float("nan"))
+    if n_boot < 1:
+        raise ValueError(f"n_boot must be >= 1, got {n_boot}")
+    means = v[np.random.default_rng(seed).integers(0, v.size, size=(n_boot, v.size))].mean(axis=1)
+    low, high = np.percentile(means, [2.5, 97.5])
+    return (float(low), float(high))
+
+
+CI_METHODS = ("auto", "wilson", "normal", "bootstrap")
+
+
+def score_interval(values: Sequence[float], method: str = "auto") -> tuple[float, float]:
+    """95% interval of the mean of per-trial scores by ``method`` (a task's ``ci`` setting).
+
+    Args:
+        values: ``(n,)`` per-trial scores (valid trials only).
+        method: ``auto`` (Wilson when every score is 0 or 1, else normal), ``wilson``, ``normal`` or
+            ``bootstrap`` (:func:`bootstrap_interval`, seed 0).
+
+    Raises:
+        ValueError: an unknown method, or ``wilson`` on scores that are not all 0 or 1.
+    """
+    if method not in CI_METHODS:
+        raise ValueError(f"ci={method!r}: use one of {', '.join(CI_METHODS)}")
+    v = np.asarray(values, np.float64)
+    if v.size == 0:
+        return (float("nan"), float("nan"))
+    binary = bool(np.all((v == 0.0) | (v == 1.0)))
+    if method == "auto":
+        method = "wilson" if binary else "normal"
+    if method == "wilson":
+        if not binary:
+            raise ValueError("ci=wilson is the interval of a success rate: it needs trial scores of 0 or 1 "
+                             "(use normal or bootstrap for a continuous score)")
+        return wilson_interval(float(v.sum()), int(v.size))
+    if method == "normal":
+        return mean_interval(v)
+    return bootstrap_interval(v)
 
 
 def summarize(s0: float, iteration_scores: Sequence[Sequence[float]]) -> dict:

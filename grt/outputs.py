@@ -12,6 +12,7 @@ from omegaconf import DictConfig
 
 from grt import metrics
 from grt.config import object_name
+from grt.scores import ScoreSpec
 
 
 def git_state() -> dict:
@@ -59,6 +60,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     from grt.report.plots import plot_curve, plot_shapes
 
     records = result.records
+    score = ScoreSpec.from_task(cfg.task)
     nominal = next(r for r in records if r["iteration"] == 0)
     summ = metrics.summarize(result.s0, result.iteration_scores)
     explored = [(r["score"], r["entropy"]) for r in records if r["iteration"] >= 1 and r["entropy"] is not None]
@@ -66,7 +68,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     summary = {
         "task": cfg.task.name, "object": object_name(cfg.object), "object_spec": str(cfg.object),
         "selector": _choice(cfg, "selector"), "optimizer": _choice(cfg, "optimizer"),
-        "policy": _choice(cfg, "policy"),
+        "policy": _choice(cfg, "policy"), **score.fields(),
         "s0": result.s0, "s0_ci95": nominal.get("ci95"),
         "best_score": best[0]["score"] if best else None, "best_ci95": best[0].get("ci95") if best else None,
         **summ,
@@ -79,15 +81,17 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         "wall_s": round(wall_s, 1), "git": git_state(),
     }
-    if result.s0 == 0:
-        summary["note"] = "S0 = 0: the policy already fails on the nominal object; relative drops are undefined"
+    if not result.s0 > 0:
+        summary["note"] = (f"S0 = {score.fmt(result.s0, unit=True)}: the policy already fails on the nominal "
+                           "object; relative drops need a positive S0 and are undefined")
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
     summary["crashshapes"] = save_crashshapes(run_dir, best, meshes, evaluator)
     # The handle/anchor sets travel with the shapes (indices into every CrashShape's vertices).
     (run_dir / "crashshapes" / "handles.json").write_text(handle_set.to_json())
     title = f"{summary['task']} / {summary['object']} / {summary['selector']}-{summary['optimizer']}"
-    plot_curve(result.s0, result.iteration_scores, run_dir / "curve.png", title=title)
-    shapes = [(m, f"it {r['iteration']}: score {r['score']:.2f}") for r, m in zip(best, meshes, strict=True)]
+    plot_curve(result.s0, result.iteration_scores, run_dir / "curve.png", title=title, score=score)
+    shapes = [(m, f"it {r['iteration']}: {score.title} {score.fmt(r['score'], unit=True)}")
+              for r, m in zip(best, meshes, strict=True)]
     plot_shapes(deformer.mesh, shapes, run_dir / "shapes.png", handles=handle_set.handles)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
     return summary
@@ -108,12 +112,14 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    score = ScoreSpec.from_summary(summary)
     table = Table(title=f"GRT red-team: {summary['task']} / {summary['object']} "
-                        f"({summary['selector']} + {summary['optimizer']})")
+                        f"({summary['selector']} + {summary['optimizer']})",
+                  caption=f"S0 and best: {score.label}; Final Drop, Iter@50% and AUC relative to S0")
     for col in ("S0", "best", "Final Drop", "Iter@50%", "AUC", "ΔComplexity", "evals", "wall s"):
         table.add_column(col, justify="right")
     fmt = lambda v, f="{:.3f}": "-" if v is None or (isinstance(v, float) and v != v) else f.format(v)  # noqa: E731
-    table.add_row(fmt(summary["s0"], "{:.2f}"), fmt(summary["best_score"], "{:.2f}"),
+    table.add_row(score.fmt(summary["s0"], unit=True), score.fmt(summary["best_score"], unit=True),
                   fmt(summary["final_drop"], "{:.1%}"),
                   f"{summary['iter_at_50']}{'' if summary['reached_50'] else ' (not reached)'}",
                   fmt(summary["auc"]), fmt(summary["delta_complexity"]), str(summary["evaluations"]),

@@ -59,16 +59,18 @@ class RedTeamLoop:
         complexity: ``mesh -> angular-deficit entropy`` (stored per candidate for ΔComplexity).
         on_candidate: called with each new record (progress bars, loggers).
         on_iteration: called with ``(t, scores)`` after each iteration.
+        ci: interval method of each candidate's journaled ``ci95`` (the task's ``ci`` setting, see
+            :func:`grt.metrics.score_interval`).
     """
 
     def __init__(self, deformer: ShapeDeformer, optimizer: Optimizer, evaluator: Evaluator, journal: Journal,
                  seeds: list[int], iterations: int, tau: float | None = None,
                  complexity: Callable[[trimesh.Trimesh], float] | None = None,
                  on_candidate: Callable[[dict], None] | None = None,
-                 on_iteration: Callable[[int, list[float]], None] | None = None):
+                 on_iteration: Callable[[int, list[float]], None] | None = None, ci: str = "auto"):
         self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
         self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
-        self.tau, self.complexity = tau, complexity
+        self.tau, self.complexity, self.ci = tau, complexity, ci
         self.on_candidate, self.on_iteration = on_candidate, on_iteration
         self.evaluations = 0
 
@@ -132,7 +134,7 @@ class RedTeamLoop:
                   for o in result.trials]
         rec = {
             "iteration": t, "candidate": i, "score": float(result.score),
-            "ci95": list(result.ci95()), "outcomes": result.outcomes,
+            "ci95": list(result.ci95(self.ci)), "outcomes": result.outcomes,
             "theta": np.asarray(theta).tolist(),
             "smoothness_m": float(smoothness_score(theta, self.deformer.meters_per_unit)),
             "entropy": float(self.complexity(mesh)) if self.complexity else None,

@@ -34,6 +34,7 @@ from grt.geometry.mesh import load_mesh
 from grt.journal import Journal, JournalError
 from grt.outputs import print_summary, write_outputs
 from grt.redteam import RedTeamLoop, episode_seeds
+from grt.scores import ScoreSpec
 from grt.selectors.base import HandleSet
 from grt.tasks import preflight
 
@@ -46,6 +47,7 @@ def run(cfg: DictConfig) -> dict:
     if cfg.resume and not (run_dir / "journal.jsonl").exists():
         raise JournalError(f"resume={cfg.resume}: no journal.jsonl there, so nothing to resume. Give the "
                            "folder of an earlier run (outputs/<task>/<object>/<selector>-<optimizer>/<time>).")
+    score = ScoreSpec.from_task(cfg.task)  # a bad task.ci fails here, before any simulation
     run_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     mesh = load_mesh(cfg.object)
@@ -70,9 +72,10 @@ def run(cfg: DictConfig) -> dict:
         loop = RedTeamLoop(
             deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
             complexity=_entropy,
-            on_candidate=lambda rec: _progress(bar, rec),
+            on_candidate=lambda rec: _progress(bar, rec, score),
             on_iteration=lambda t, scores: logger.log_iteration(t, {"best_score": optimizer.best_score,
-                                                                    "mean_score": float(np.mean(scores))}))
+                                                                    "mean_score": float(np.mean(scores))}),
+            ci=score.ci)
         result = loop.run()
         bar.close()
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
@@ -104,9 +107,9 @@ def _entropy(mesh) -> float:
     return angular_deficit_entropy(mesh)
 
 
-def _progress(bar: tqdm, rec: dict) -> None:
+def _progress(bar: tqdm, rec: dict, score: ScoreSpec) -> None:
     bar.update(1)
-    bar.set_postfix(it=rec["iteration"], score=f"{rec['score']:.2f}")
+    bar.set_postfix(it=rec["iteration"], score=score.fmt(rec["score"], unit=True))
 
 
 def _plain(node) -> dict:

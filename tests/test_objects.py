@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
 
 from grt.geometry.deform import ShapeDeformer
 from grt.geometry.mesh import mesh_problems
@@ -11,7 +12,7 @@ from grt.objects import UnknownObjectError, get_object, list_objects, object_inf
 from grt.objects.shapes import min_face_angles
 
 REQUIRED = {"mug", "bottle", "bowl", "can", "cup", "screwdriver", "hammer", "sugar_box", "spray_bottle",
-            "banana", "plug", "drawer_handle"}
+            "banana", "plug", "drawer_handle", "drawer_pull"}
 
 
 def test_required_objects_listed():
@@ -49,6 +50,26 @@ def test_named_regions_and_copies():
     a = get_object("mug")
     a.vertices += 1.0
     assert get_object("mug").bounds[0][2] == 0.0  # cache not mutated
+
+
+@pytest.mark.parametrize("name", ["drawer_handle", "drawer_pull"])
+def test_drawer_handle_grasp_on_grip_and_feet_on_front(name):
+    m = get_object(name)
+    regions = object_regions(name)
+    drawer = object_info(name)["drawer"]
+    grasp, radius = np.asarray(drawer["grasp"]), drawer["grip_radius"]
+    grip = regions["grip"]
+    assert np.all((grasp >= grip[0]) & (grasp <= grip[1])), grasp
+    dist = trimesh.proximity.closest_point(m, grasp[None])[1][0]
+    assert dist <= radius + 1e-3, (dist, radius)  # the grasp point sits on the tube's axis
+    for foot in ("left_foot", "right_foot"):
+        box = regions[foot]
+        assert np.any((grip[0] > box[1]) | (grip[1] < box[0])), f"{name}: grip overlaps {foot}"
+        inside = np.all((m.vertices >= box[0]) & (m.vertices <= box[1]), axis=1)
+        assert inside.any() and m.vertices[inside, 2].min() < 1e-6, f"{name}:{foot} does not touch z = 0"
+    if name == "drawer_handle":  # old region names still work
+        assert all(np.array_equal(regions[a], regions[b]) for a, b in
+                   (("bar", "grip"), ("left_post", "left_foot"), ("right_post", "right_foot")))
 
 
 def test_unknown_object_error():

@@ -45,6 +45,7 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     from grt.geometry.mesh import load_mesh
     from grt.policies.rsl_rl import load_checkpoint
     from grt.redteam import episode_seeds
+    from grt.scores import ScoreSpec
     from grt.selectors.base import HandleSet
 
     bt = cfg.blueteam
@@ -103,7 +104,7 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
              "nominal_before": before["nominal"]["score"], "nominal_after": after["nominal"]["score"],
              "heldout_before": mean(before, heldout), "heldout_after": mean(after, heldout),
              "red_team_score": g.red_team_score, "trials": int(bt.eval_trials)} for g in crash]
-    write_table(out_dir, rows, str(run_cfg.task.score))
+    write_table(out_dir, rows, ScoreSpec.from_task(run_cfg.task))
     result = {"run": str(run_dir), "checkpoint": str(fine_tuned), "rows": rows,
               "heldout": [g.name for g in heldout]}
     if bt.rered.enabled:

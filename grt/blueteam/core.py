@@ -20,6 +20,8 @@ import numpy as np
 import trimesh
 from omegaconf import DictConfig, OmegaConf
 
+from grt.scores import ScoreSpec
+
 log = logging.getLogger(__name__)
 
 
@@ -83,8 +85,8 @@ def select_crashshapes(records: list[dict], mode: str, top_k: int, failing_below
     else:
         raise BlueTeamError(f"blueteam.crashshapes={mode!r}: use top1, topk or all-failing")
     if not chosen:
-        raise BlueTeamError(f"the run found no CrashShape scoring below {failing_below:.0%} of S0 = {s0:.2f}: "
-                            "nothing to blue-team (red-team longer, or raise blueteam.failing_below)")
+        raise BlueTeamError(f"the run found no CrashShape scoring below {failing_below:.0%} of "
+                            f"S0 = {s0:.4g}: nothing to blue-team (red-team longer, or raise blueteam.failing_below)")
     return chosen
 
 
@@ -107,13 +109,19 @@ def summarize_scores(results) -> dict[str, float]:
     return {name: float(res.score) for name, res in results.items()}
 
 
-def write_table(out_dir: Path, rows: list[dict], unit: str) -> None:
-    """``table3.json`` (the rows) and ``table3.md`` (the paper's columns and ours)."""
+def write_table(out_dir: Path, rows: list[dict], score: ScoreSpec | str) -> None:
+    """``table3.json`` (the rows) and ``table3.md`` (the paper's columns and ours).
+
+    Args:
+        score: the task's score (a bare name is a unit-less score): success rates print as %, other
+            scores as themselves, in their unit.
+    """
+    score = ScoreSpec(name=score) if isinstance(score, str) else score
     (out_dir / "table3.json").write_text(json.dumps(rows, indent=1))
-    pct = (lambda v: f"{100 * v:.1f}") if unit == "success" else (lambda v: f"{v:.3f}")
+    pct = (lambda v: f"{100 * v:.1f}") if score.binary else score.fmt
     head = "| policy | geometry | Orig. | Blue. | Nominal before | Nominal after | Held-out before | Held-out after |"
-    lines = [f"Scores: {'success %' if unit == 'success' else unit}, same held-out episodes before and after.", "",
-             head, "|" + "---|" * 8]
+    name = "success %" if score.binary else score.label
+    lines = [f"Scores: {name}, same held-out episodes before and after.", "", head, "|" + "---|" * 8]
     for r in rows:
         lines.append(f"| {r['policy']} | {r['geometry']} | {pct(r['orig'])} | {pct(r['blue'])} | "
                      f"{pct(r['nominal_before'])} | {pct(r['nominal_after'])} | {pct(r['heldout_before'])} | "

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from grt.metrics import mean_interval, wilson_interval
+from grt.metrics import score_interval
 from grt.tasks.base import TrialOutcome
 
 SIM_ERROR = "sim_error"
@@ -63,18 +63,19 @@ class CandidateResult:
     def sim_errors(self) -> int:
         return sum(t.mode == SIM_ERROR for t in self.trials)
 
-    def ci95(self) -> tuple[float, float]:
-        """95% interval of ``score``: Wilson for binary scores, normal approximation otherwise."""
-        scores = np.array([t.score for t in self.valid_trials], np.float64)
-        if scores.size == 0:
-            return float("nan"), float("nan")
-        if np.all((scores == 0.0) | (scores == 1.0)):
-            return wilson_interval(float(scores.sum()), int(scores.size))
-        return mean_interval(scores)
+    def ci95(self, method: str = "auto") -> tuple[float, float]:
+        """95% interval of ``score`` over the valid trials (NaN without any).
 
-    def summary(self) -> dict:
-        """JSON-ready figures: score, success_rate, trials, outcomes, ci95, wall_s."""
-        low, high = self.ci95()
+        Args:
+            method: the task's ``ci`` setting: ``auto`` (Wilson when every trial scored 0 or 1, else
+                the normal approximation), ``wilson``, ``normal`` or ``bootstrap``; see
+                :func:`grt.metrics.score_interval`.
+        """
+        return score_interval([t.score for t in self.valid_trials], method)
+
+    def summary(self, ci: str = "auto") -> dict:
+        """JSON-ready figures: score, success_rate, trials, outcomes, ci95 (by ``ci``), wall_s."""
+        low, high = self.ci95(ci)
         return {"score": self.score, "success_rate": self.success_rate, "trials": len(self.trials),
                 "outcomes": self.outcomes, "ci95": [low, high], "wall_s": self.wall_s}
 

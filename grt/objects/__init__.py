@@ -19,7 +19,7 @@ import functools
 import numpy as np
 import trimesh
 
-from grt.objects.catalog import BUILDERS, DESCRIPTIONS, INSERTION
+from grt.objects.catalog import BUILDERS, DESCRIPTIONS, DRAWER, INSERTION
 from grt.objects.shapes import clean_slivers, to_trimesh
 
 __all__ = ["UnknownObjectError", "get_object", "list_objects", "object_info", "object_regions"]
@@ -80,8 +80,10 @@ def object_regions(name: str) -> dict[str, np.ndarray]:
 
 
 def object_info(name: str) -> dict:
-    """Facts about a built-in object: ``description`` (used in prompts), ``regions`` (names), and for
-    plugs ``insertion`` (``head_length``, ``grip_height`` in meters).
+    """Facts about a built-in object: ``description`` (used in prompts), ``regions`` (names), for
+    plugs ``insertion`` (``head_length``, ``grip_height`` in meters), and for drawer handles
+    ``drawer`` (``grasp``: ``[x, y, z]`` grasp point on the grip's axis, ``grip_radius``; meters, in
+    the frame :func:`get_object` returns).
 
     Raises:
         UnknownObjectError: ``name`` is not built in.
@@ -90,4 +92,6 @@ def object_info(name: str) -> dict:
     info = {"description": DESCRIPTIONS[name], "regions": sorted(_build(name)[1])}
     if name in INSERTION:
         info["insertion"] = dict(INSERTION[name])
+    if name in DRAWER:
+        info["drawer"] = {k: list(v) if isinstance(v, list) else v for k, v in DRAWER[name].items()}
     return info

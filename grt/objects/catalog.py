@@ -12,7 +12,7 @@ from __future__ import annotations
 import manifold3d as m3
 import numpy as np
 
-from grt.objects.shapes import arc, grid_box, revolve, rotate_z_to, sweep_tube
+from grt.objects.shapes import arc, grid_box, revolve, rotate_z_to, sweep_profile, sweep_tube
 
 PI = np.pi
 
@@ -194,28 +194,77 @@ def round_peg():
 
 
 def drawer_handle():
-    # Bar handle standing on its two posts (the drawer front is the plane z = 0).
+    # Bar handle standing on its two posts. Handle frame: the drawer front is the plane z = 0, x runs
+    # along the drawer's width, y is vertical once mounted (the fingers close along y).
     span, rb, rp, hp = 0.096, 0.006, 0.005, 0.032  # post spacing, bar/post radius, post height
     bar = rotate_z_to(revolve(_capsule_profile(0.128, rb, 0.005), segments=24, min_spacing=0.003), "x")
     bar = bar.translate((-0.064, 0.0, hp))
     posts = [revolve(_cat((0, 0), (0.009, 0), (0.009, 0.002), arc((rp + 0.003, 0.005), 0.003, -PI / 2, -PI, n=12),
                           (rp, hp), (0, hp)), segments=24, min_spacing=0.002).translate((x, 0.0, 0.0))
              for x in (-span / 2, span / 2)]
-    regions = {"bar": _box((-0.066, -rb - 0.002, hp - rb - 0.002), (0.066, rb + 0.002, hp + rb + 0.002)),
-               "left_post": _box((-span / 2 - 0.01, -0.01, 0), (-span / 2 + 0.01, 0.01, hp - rb)),
-               "right_post": _box((span / 2 - 0.01, -0.01, 0), (span / 2 + 0.01, 0.01, hp - rb))}
+    # (regions get 1 mm of padding: grip and feet stay 1 mm apart)
+    grip = _box((-0.066, -rb - 0.002, hp - rb), (0.066, rb + 0.002, hp + rb + 0.002))
+    feet = [_box((x - 0.01, -0.01, 0), (x + 0.01, 0.01, hp - rb - 0.003)) for x in (-span / 2, span / 2)]
+    regions = {"grip": grip, "left_foot": feet[0], "right_foot": feet[1],
+               "bar": grip.copy(), "left_post": feet[0].copy(), "right_post": feet[1].copy()}  # old names
     return bar + posts[0] + posts[1], regions
+
+
+def drawer_pull():
+    # D-shaped pull: one round tube from a flat pad on the drawer front (z = 0) up a foot, through a
+    # 90-degree bend, along the grip (parallel to the front) and back down; swept in one piece, so
+    # there are no Boolean seams. Handle frame as for drawer_handle.
+    xf, rt, rb, zg = 0.048, 0.0055, 0.014, 0.032  # foot x, tube radius, bend radius, grip height
+    rp, tp, f = 0.010, 0.002, 0.003  # pad radius, pad thickness, pad-to-tube fillet radius
+    a, b, g = zg - rb, PI / 2 * rb, 2 * (xf - rb)  # lengths of foot, bend, grip along the centerline
+    length = 2 * (a + b) + g
+
+    def half(s):  # left half of the centerline: foot up, bend, grip towards x = 0
+        th = np.clip((s - a) / rb, 0, PI / 2)
+        up, bend = s <= a, (s > a) & (s < a + b)
+        c = np.zeros((len(s), 3))
+        c[:, 0] = np.where(up, -xf, np.where(bend, -xf + rb - rb * np.cos(th), -xf + rb + s - a - b))
+        c[:, 2] = np.where(up, s, np.where(bend, a + rb * np.sin(th), zg))
+        t = np.zeros((len(s), 3))
+        t[:, 0] = np.where(up, 0.0, np.where(bend, np.sin(th), 1.0))
+        t[:, 2] = np.where(up, 1.0, np.where(bend, np.cos(th), 0.0))
+        return c, t
+
+    def path(s):
+        right = s > length / 2
+        c, t = half(np.where(right, length - s, s))
+        c[right, 0] *= -1  # mirror in x; the tangent of the mirrored, reversed curve is (tx, 0, -tz)
+        t[right, 2] *= -1
+        return c, t
+
+    prof = _cat((0, 0), (rp, 0), (rp, tp), arc((rt + f, tp + f), f, -PI / 2, -PI, n=12),
+                arc((rt + f, length - tp - f), f, PI, PI / 2, n=12), (rp, length - tp), (rp, length), (0, length))
+    solid = sweep_profile(prof, path, (0.0, 1.0, 0.0), segments=24, min_spacing=0.001)
+    # (regions get 1 mm of padding: the grip ends where the bends begin, the feet 3 mm further out)
+    regions = {"grip": _box((-(xf - rb), -rt, zg - rt), (xf - rb, rt, zg + rt)),
+               "left_foot": _box((-xf - rp, -rp, 0), (-xf + rp, rp, zg - rt - 0.003)),
+               "right_foot": _box((xf - rp, -rp, 0), (xf + rp, rp, zg - rt - 0.003))}
+    return solid, regions
 
 
 BUILDERS = {f.__name__: f for f in (mug, bottle, bowl, can, cup, screwdriver, hammer, sugar_box,
                                     spray_bottle, banana, plug, drawer_handle, usb_plug,
-                                    round_peg)}
+                                    round_peg, drawer_pull)}
 
 # Plugs for the insertion task: connector length (m, from the tip at z = 0) and the height (m) of the
 # point between the fingertips in the nominal grip.
 INSERTION = {
     "usb_plug": {"head_length": 0.012, "grip_height": 0.030},
     "round_peg": {"head_length": 0.012, "grip_height": 0.030},
+}
+
+# Drawer handles for the drawer task, in the frame get_object returns (after normalization: z = 0 is
+# the mounting plane on the drawer front, x along the drawer's width, y vertical once mounted, x/y
+# centered): the grasp point (m), the center of the grip tube's cross-section at the middle of the
+# grip, and the grip tube's radius (m). The fingers close along y around it.
+DRAWER = {
+    "drawer_handle": {"grasp": [0.0, 0.0, 0.032], "grip_radius": 0.006},
+    "drawer_pull": {"grasp": [0.0, 0.0, 0.032], "grip_radius": 0.0055},
 }
 
 DESCRIPTIONS = {
@@ -233,4 +282,5 @@ DESCRIPTIONS = {
     "usb_plug": "a USB-like plug held upright for insertion: a flat metal connector head below a grip body",
     "round_peg": "a round peg held upright for insertion: a cylindrical pin below a wider cylindrical grip",
     "drawer_handle": "a bar-shaped drawer handle on two posts, mounted on a drawer front",
+    "drawer_pull": "a D-shaped drawer pull: one round bent tube with two feet, mounted on a drawer front",
 }

@@ -182,6 +182,52 @@ def sweep_tube(centerline, radius, rings: int, segments: int) -> trimesh.Trimesh
     return mesh
 
 
+def sweep_profile(profile: np.ndarray, path, normal, segments: int, spacing: float | None = None,
+                  min_spacing: float = 0.001) -> trimesh.Trimesh:
+    """Solid of revolution about a bent axis: :func:`revolve` with its axis following a planar curve.
+
+    Each profile point ``(r, s)`` becomes a ring of radius ``r`` around the path point at arc length
+    ``s``, in the plane normal to the path there, so one mesh carries flat end pads, fillets and bends
+    without Boolean seams.
+
+    Args:
+        profile: ``(K, 2)`` dense ``(r, s)`` polyline from the axis (``r = 0``) around the solid and
+            back to the axis; ``s`` is arc length along the path, meters.
+        path: ``s (n,) -> (points (n, 3), unit tangents (n, 3))``, meters; a curve in the plane normal
+            to ``normal`` whose bend radius exceeds the profile's ``r`` wherever it bends.
+        normal: ``(3,)`` unit normal of the path's plane.
+        segments: vertices per ring.
+        spacing, min_spacing: largest and smallest edge length along the profile, as in :func:`revolve`.
+
+    Returns:
+        A watertight mesh with outward normals.
+    """
+    prof = np.asarray(profile, np.float64)
+    if spacing is None:
+        spacing = 1.5 * 2 * np.pi * prof[:, 0].max() / segments
+    pts = resample(prof, spacing, segments, min_spacing)
+    c, t = path(pts[:, 1])
+    n = np.broadcast_to(np.asarray(normal, np.float64), t.shape)
+    u = np.cross(t, n)
+    phi = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    ring = c[1:-1, None] + pts[1:-1, 0, None, None] * (np.cos(phi)[None, :, None] * u[1:-1, None]
+                                                      + np.sin(phi)[None, :, None] * n[1:-1, None])
+    verts = np.concatenate([ring.reshape(-1, 3), c[[0, -1]]])
+    rings = len(pts) - 2
+    i = np.arange(segments)
+    j = (i + 1) % segments
+    faces = []
+    for k in range(rings - 1):
+        a, b = k * segments + i, k * segments + j
+        faces += [np.stack([a, b, b + segments], 1), np.stack([a, b + segments, a + segments], 1)]
+    s0, s1, last = rings * segments, rings * segments + 1, (rings - 1) * segments
+    faces += [np.stack([np.full(segments, s0), j, i], 1), np.stack([np.full(segments, s1), last + i, last + j], 1)]
+    mesh = trimesh.Trimesh(verts, np.concatenate(faces), process=True)
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh
+
+
 def to_manifold(mesh: trimesh.Trimesh) -> m3.Manifold:
     """trimesh -> manifold3d (float32 vertices, as manifold3d stores them)."""
     return m3.Manifold(m3.Mesh(vert_properties=np.asarray(mesh.vertices, np.float32),

@@ -2,7 +2,8 @@
 
 Reads only ``summary.json`` files (and ``error.txt`` of failed jobs): Final Drop (%), ΔComplexity,
 Iter@50%, AUC, per run, plus the mean over runs of each (selector, optimizer) method, the way the
-paper aggregates objects into Tables 1 and 2.
+paper aggregates objects into Tables 1 and 2. S0 and the best score are in the task's own score, named
+per run (``success rate``, ``mean opening (m)``); the other columns are relative to S0, unit-free.
 """
 
 from __future__ import annotations
@@ -15,8 +16,10 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-COLUMNS = ("task", "object", "policy", "selector", "optimizer", "tau", "s0", "best_score", "final_drop", "delta_complexity",
-           "iter_at_50", "auc", "evaluations", "wall_s")
+from grt.scores import ScoreSpec
+
+COLUMNS = ("task", "object", "policy", "selector", "optimizer", "tau", "score_name", "score_unit", "s0",
+           "best_score", "final_drop", "delta_complexity", "iter_at_50", "auc", "evaluations", "wall_s")
 
 
 def collect(root: Path) -> tuple[list[dict], list[Path]]:
@@ -27,6 +30,9 @@ def collect(root: Path) -> tuple[list[dict], list[Path]]:
     for path in sorted(root.rglob("summary.json")):
         data = json.loads(path.read_text())
         data["run"] = str(path.parent)
+        spec = ScoreSpec.from_summary(data)  # summaries written before score_name: a success rate
+        data.setdefault("score_name", spec.name)
+        data.setdefault("score_unit", spec.unit)
         rows.append(data)
     failed = sorted(p.parent for p in root.rglob("error.txt"))
     return rows, failed
@@ -38,6 +44,12 @@ def _fmt(v, kind: str = "") -> str:
     if kind == "pct":
         return f"{100 * v:.1f}"
     return f"{v:.3f}" if isinstance(v, float) else str(v)
+
+
+def score_cell(r: dict, key: str) -> str:
+    """S0 or the best score of a run in its task's score (3 decimals for a success rate)."""
+    spec = ScoreSpec.from_summary(r)
+    return _fmt(r.get(key)) if spec.binary else spec.fmt(r.get(key))
 
 
 def method(r: dict) -> str:
@@ -62,11 +74,12 @@ def aggregate(rows: list[dict]) -> list[dict]:
 
 def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     """Per-run table, per-method table (the paper's columns) and the failed jobs."""
-    lines = ["| task | object | policy | method | S0 | best | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| task | object | policy | method | score | S0 | best | Final Drop (%) ↑ | ΔComplexity ↓ "
+             "| Iter@50% ↓ | AUC ↑ |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | {_fmt(r['s0'])} | "
-                     f"{_fmt(r['best_score'])} | {_fmt(r['final_drop'], 'pct')} | {_fmt(r['delta_complexity'])} | "
+        lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | "
+                     f"{ScoreSpec.from_summary(r).label} | {score_cell(r, 's0')} | {score_cell(r, 'best_score')} | "
+                     f"{_fmt(r['final_drop'], 'pct')} | {_fmt(r['delta_complexity'])} | "
                      f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} |")
     lines += ["", "Mean per method (* = 50% drop not reached; T reported):", "",
               "| task | policy | method | runs | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",

@@ -12,9 +12,14 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
+from grt.scores import ScoreSpec  # noqa: E402
 
-def plot_curve(s0: float, iteration_scores: list[list[float]], path: Path, title: str = "") -> Path:
-    """Per-iteration scores (dots), best-so-far (line) and the nominal score (dashed)."""
+
+def curve_figure(s0: float, iteration_scores: list[list[float]], title: str = "",
+                 score: ScoreSpec | None = None) -> plt.Figure:
+    """Per-iteration scores (dots), best-so-far (line) and the nominal score (dashed), labelled with
+    the task's score (``success rate``, ``mean opening (m)``); the caller closes the figure."""
+    score = score or ScoreSpec()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
     best = [s0]
     for t, scores in enumerate(iteration_scores, start=1):
@@ -22,14 +27,21 @@ def plot_curve(s0: float, iteration_scores: list[list[float]], path: Path, title
                    label="candidates" if t == 1 else None)
         best.append(min([best[-1], *(x for x in scores if x == x)]))  # NaN: unscorable, skipped
     ax.plot(range(len(best)), best, "-o", color="tab:red", label="best so far")
-    ax.axhline(s0, ls="--", color="tab:blue", label=f"nominal S0 = {s0:.2f}")
+    ax.axhline(s0, ls="--", color="tab:blue", label=f"nominal S0 = {score.fmt(s0, unit=True)}")
     ax.axhline(0.5 * s0, ls=":", color="tab:blue", alpha=0.6, label="50% of S0")
     ax.set_xlabel("iteration")
-    ax.set_ylabel("task score (success rate)")
+    ax.set_ylabel(score.label)
     ax.set_title(title or "degradation curve")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
+    return fig
+
+
+def plot_curve(s0: float, iteration_scores: list[list[float]], path: Path, title: str = "",
+               score: ScoreSpec | None = None) -> Path:
+    """Save :func:`curve_figure` to ``path`` (``score``: the task's; default a success rate)."""
+    fig = curve_figure(s0, iteration_scores, title, score)
     fig.savefig(path)
     plt.close(fig)
     return Path(path)

@@ -14,6 +14,7 @@ from grt.tasks.base import FAILURE_MODES, EpisodeSession, TaskSession, TrialOutc
 TASKS: dict[str, str] = {
     "grasp": "grt.tasks.grasp.GraspSession",
     "insertion": "grt.tasks.insertion.InsertionSession",
+    "drawer": "grt.tasks.drawer.DrawerSession",
 }
 
 

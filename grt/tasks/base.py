@@ -37,6 +37,10 @@ FAILURE_MODES = (
     "misaligned",
     "dropped",
     "timeout",
+    # drawer
+    "missed_handle",
+    "slipped",
+    "partial_open",
 )
 
 

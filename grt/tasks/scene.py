@@ -33,24 +33,51 @@ class InMemoryActorBuilder(ActorBuilder):
 
     def build_physx_component(self, link_parent=None):
         component = super().build_physx_component(link_parent)
-        for i, verts in enumerate(self._parts):
-            if len(verts) < 4 or not np.isfinite(verts).all():
-                raise ValueError(f"collision part {i} has {len(verts)} vertices or non-finite values")
-            try:
-                shape = physx.PhysxCollisionShapeConvexMesh(
-                    vertices=verts, scale=np.ones(3, np.float32), material=self._material)
-            except RuntimeError as err:  # PhysX failed to cook the hull (degenerate/flat part)
-                raise ValueError(f"collision part {i} ({len(verts)} vertices) did not build: {err}") from err
-            # PhysX "cooks" a flat, collinear or tiny part into a ~2 mm box without complaint.
-            inflation = np.ptp(shape.get_vertices(), axis=0) - np.ptp(verts, axis=0)
-            if inflation.max() > 5e-4:
-                raise ValueError(f"collision part {i} is degenerate (flat, collinear or < 1 mm): PhysX "
-                                 f"inflated it by {inflation.max() * 1000:.1f} mm")
-            shape.set_collision_groups(self.collision_groups)
-            shape.set_density(self._density)
-            component.attach(shape)
-            self.num_built_shapes += 1
+        self.num_built_shapes += attach_convex_parts(component, self._parts, self._material, self._density,
+                                                     self.collision_groups)
         return component
+
+
+def attach_convex_parts(component, parts: list[np.ndarray], material: physx.PhysxMaterial, density: float,
+                        collision_groups) -> int:
+    """Attach convex collision shapes built from vertex arrays to a PhysX body; returns how many.
+
+    Raises:
+        ValueError: a part with < 4 or non-finite vertices, that PhysX cannot cook, or that PhysX
+            inflated (a flat, collinear or sub-millimetre part).
+    """
+    built = 0
+    for i, verts in enumerate(parts):
+        verts = np.ascontiguousarray(verts, dtype=np.float32).reshape(-1, 3)
+        if len(verts) < 4 or not np.isfinite(verts).all():
+            raise ValueError(f"collision part {i} has {len(verts)} vertices or non-finite values")
+        try:
+            shape = physx.PhysxCollisionShapeConvexMesh(vertices=verts, scale=np.ones(3, np.float32),
+                                                        material=material)
+        except RuntimeError as err:  # PhysX failed to cook the hull (degenerate/flat part)
+            raise ValueError(f"collision part {i} ({len(verts)} vertices) did not build: {err}") from err
+        # PhysX "cooks" a flat, collinear or tiny part into a ~2 mm box without complaint.
+        inflation = np.ptp(shape.get_vertices(), axis=0) - np.ptp(verts, axis=0)
+        if inflation.max() > 5e-4:
+            raise ValueError(f"collision part {i} is degenerate (flat, collinear or < 1 mm): PhysX "
+                             f"inflated it by {inflation.max() * 1000:.1f} mm")
+        shape.set_collision_groups(collision_groups)
+        shape.set_density(float(density))
+        component.attach(shape)
+        built += 1
+    return built
+
+
+def render_mesh_shape(mesh: trimesh.Trimesh, color, pose: sapien.Pose | None = None):
+    """A SAPIEN render shape of ``mesh`` (m) with a plain colour ``(r, g, b)``."""
+    verts = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
+    shape = sapien.render.RenderShapeTriangleMesh(
+        verts, np.ascontiguousarray(mesh.faces, dtype=np.uint32),
+        np.ascontiguousarray(mesh.vertex_normals, dtype=np.float32), np.zeros((len(verts), 2), np.float32),
+        sapien.render.RenderMaterial(base_color=(*color, 1.0)))
+    if pose is not None:
+        shape.local_pose = pose
+    return shape
 
 
 def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], name: str,
@@ -80,13 +107,7 @@ def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], na
     builder = InMemoryActorBuilder(parts, material, density)
     builder.set_scene(scene)
     if scene.can_render():
-        render_material = sapien.render.RenderMaterial(base_color=(*color, 1.0))
-        verts = np.ascontiguousarray(mesh.vertices, dtype=np.float32)
-        shape = sapien.render.RenderShapeTriangleMesh(
-            verts, np.ascontiguousarray(mesh.faces, dtype=np.uint32),
-            np.ascontiguousarray(mesh.vertex_normals, dtype=np.float32),
-            np.zeros((len(verts), 2), np.float32), render_material)
-        builder._procedural_shapes.append(shape)
+        builder._procedural_shapes.append(render_mesh_shape(mesh, color))
     builder.initial_pose = sapien.Pose(p=[0.0, 0.0, initial_z])
     actor = builder.build(name=name)
     built = len(actor._objs[0].find_component_by_type(physx.PhysxRigidDynamicComponent).collision_shapes)

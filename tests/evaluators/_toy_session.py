@@ -3,7 +3,8 @@
 The "trial" drops seeded random points into the object's bounding box and asks whether enough of
 them land inside the convex collision parts: it depends on the mesh, the parts and the seed only.
 Switches make it misbehave on purpose: raise on a seed, kill its own process on a seed (always, or
-only the first time, remembered through a marker file), or fail to build.
+only the first time, remembered through a marker file), or fail to build. ``continuous=True`` scores a
+trial by a length in meters (the filled fraction times the object's height) instead of 0/1.
 """
 
 from __future__ import annotations
@@ -28,11 +29,13 @@ class ToySession(TaskSession):
     """Monte-Carlo 'trial' on the loaded object; see the module docstring."""
 
     def __init__(self, policy: ToyPolicy, samples: int = 400, raise_on: int | None = None,
-                 crash_on: int | None = None, crash_once_marker: str | None = None, fail_build: bool = False):
+                 crash_on: int | None = None, crash_once_marker: str | None = None, fail_build: bool = False,
+                 continuous: bool = False):
         if fail_build:
             raise RuntimeError("toy session refuses to build")
         self.policy, self.samples = policy, int(samples)
         self.raise_on, self.crash_on, self.marker = raise_on, crash_on, crash_once_marker
+        self.continuous = bool(continuous)
         self.equations: list[np.ndarray] = []
         self.bounds = np.zeros((2, 3))
 
@@ -59,7 +62,8 @@ class ToySession(TaskSession):
         fill = float(inside.mean())
         ok = fill >= bar
         self.last = f"seed {seed}: fill {fill:.3f}"
-        return TrialOutcome(seed, float(ok), ok, "success" if ok else "missed", {"fill": fill, "pid": os.getpid()})
+        score = fill * float(self.bounds[1, 2] - self.bounds[0, 2]) if self.continuous else float(ok)
+        return TrialOutcome(seed, score, ok, "success" if ok else "missed", {"fill": fill, "pid": os.getpid()})
 
     def render(self, path: str) -> None:
         """The 'picture' of the last trial: a text file (the protocol only needs ``render(path)``)."""

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from omegaconf import OmegaConf
+from omegaconf import OmegaConf, open_dict
 
 from grt.bench.grasp import compose
 
@@ -41,3 +41,36 @@ def test_clear_errors_for_bad_objects(obj, message, tmp_path):
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert message in proc.stderr
+
+
+def test_evaluate_reports_a_continuous_score_with_its_unit_and_interval(toy_configs, u_mesh, tmp_path):
+    from grt import metrics
+    from grt.evaluate import evaluate, figures
+
+    path = tmp_path / "u_block.ply"
+    u_mesh.export(path)
+    cfg = compose([f"object={path}", "budget=smoke", "budget.trials=6", "evaluator.workers=1",
+                   "evaluator.progress=false", f"evaluator.cache_dir={tmp_path / 'coacd'}"])
+    task, policy = toy_configs(continuous=True)
+    with open_dict(cfg):
+        cfg.task.session = OmegaConf.create(task["session"])
+        cfg.task.score, cfg.task.score_unit, cfg.task.ci = "height", "m", "bootstrap"
+    cfg.policy = OmegaConf.create(policy)
+    summary = evaluate(cfg, tmp_path / "out")
+    heights = [t["score"] for t in json.loads((tmp_path / "out" / "evaluation.json").read_text())["trials"]]
+    assert 0.0 < summary["score"] < 0.05 and not set(heights) <= {0.0, 1.0}  # meters, not a success rate
+    assert summary["ci95"] == list(metrics.bootstrap_interval(heights))
+    assert (summary["score_name"], summary["score_unit"], summary["ci"]) == ("height", "m", "bootstrap")
+    text = figures(summary)
+    assert f"mean height (m) {summary['score']:.4g} m  95% CI [" in text and "(bootstrap)" in text
+    assert "success rate" in text  # still shown, on its own line
+    assert json.loads(json.dumps(summary))["score"] == summary["score"]
+
+
+def test_figures_of_a_binary_task_say_success_rate():
+    from grt.evaluate import figures
+
+    summary = {"object": "mug", "mesh_hash": "abc", "score": 0.75, "success_rate": 0.75, "ci95": [0.3, 0.95],
+               "trials": 4, "outcomes": {"success": 3, "missed": 1}, "wall_s": 1.0, "trials_per_s": 4.0,
+               "worker_s": 1.0, "collision_s": 0.01}  # written before score_name existed: a success rate
+    assert "success rate  0.750  95% CI [0.300, 0.950] (auto)  over 4 trials" in figures(summary)

@@ -73,3 +73,16 @@ def test_unscorable_candidates_are_skipped():
     curve = metrics.degradation_curve(1.0, [[float("nan"), 0.8], [float("nan")]])
     assert curve.tolist() == pytest.approx([0, 0.2, 0.2])
     assert metrics.delta_complexity(1.0, [(float("nan"), 9.0), (0.5, 2.0)]) == pytest.approx(1.0)
+
+
+def test_journal_keeps_continuous_per_trial_scores_exactly(tmp_path):
+    """A drawer task journals openings in meters per trial; a resume must replay the very same floats."""
+    trials = [{"seed": 7, "score": 0.1 + 0.2, "success": True, "mode": "success"},
+              {"seed": 8, "score": 1.234567890123e-5, "success": False, "mode": "jammed"},
+              {"seed": 9, "score": 0.0, "success": False, "mode": "sim_error"}]
+    rec = {"iteration": 1, "candidate": 0, "score": (0.1 + 0.2 + 1.234567890123e-5) / 2,
+           "ci95": [float("nan"), float("nan")], "trials": trials}
+    Journal(tmp_path / "journal.jsonl").append(rec)
+    back = Journal(tmp_path / "journal.jsonl").get(1, 0)
+    assert [t["score"] for t in back["trials"]] == [t["score"] for t in trials]  # bit for bit
+    assert back["score"] == rec["score"] and all(math.isnan(x) for x in back["ci95"])

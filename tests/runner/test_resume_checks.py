@@ -77,6 +77,7 @@ def test_resume_with_another_object_is_refused(tmp_path):
 @pytest.mark.parametrize(("args", "message"), [
     (["resume=/nonexistent/run"], "nothing to resume"),
     (["object=no_such_thing"], "no_such_thing"),
+    (["+task.ci=student"], "task.ci='student': use one of auto, wilson, normal, bootstrap"),
 ])
 def test_cli_user_errors_exit_2_with_the_fix(args, message, tmp_path):
     res = subprocess.run([sys.executable, "-m", "grt.run", *args, f"hydra.run.dir={tmp_path}"],

@@ -1,0 +1,89 @@
+"""What a task's score is: its name, unit and interval method, read once from the task config.
+
+A binary task (``score: success``, no ``score_unit``) scores a candidate by its success rate; a
+continuous task (e.g. ``score: opening``, ``score_unit: m``) by the mean of a per-trial value. The red
+team minimizes either, and every metric is relative to the nominal score ``S0``, so only what is
+printed, plotted and stored needs the name and unit: everything that does goes through
+:class:`ScoreSpec`, so outputs say "success rate" or "mean opening (m)".
+
+Task config keys (all optional, so run folders written before they existed still load):
+
+- ``score``: the name of the per-trial value (default ``success``).
+- ``score_unit``: its unit (``m``, ``rad``...); ``""`` or absent for a binary task.
+- ``ci``: the 95% interval of a candidate's score, one of :data:`grt.metrics.CI_METHODS`
+  (default ``auto``: Wilson when every trial score is 0 or 1, else the normal approximation).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from grt.metrics import CI_METHODS
+
+
+class ScoreConfigError(ValueError):
+    """A task's score settings cannot be used (unknown ``ci``, Wilson on a continuous score)."""
+
+
+@dataclass(frozen=True)
+class ScoreSpec:
+    """How a task's score is named, measured and bounded.
+
+    Attributes:
+        name: the task metric of one trial (``success``, ``opening``...).
+        unit: its unit (``""`` for a binary or dimensionless score).
+        ci: interval method of a candidate's mean score (see :func:`grt.metrics.score_interval`).
+    """
+
+    name: str = "success"
+    unit: str = ""
+    ci: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.ci not in CI_METHODS:
+            raise ScoreConfigError(f"task.ci={self.ci!r}: use one of {', '.join(CI_METHODS)}")
+        if self.ci == "wilson" and self.unit:
+            raise ScoreConfigError(f"task.ci=wilson is the interval of a success rate, but the task's score "
+                                   f"'{self.name}' is in {self.unit}: use task.ci=normal, bootstrap or auto")
+
+    @classmethod
+    def from_task(cls, task: Mapping | None) -> ScoreSpec:
+        """The spec of a task config (a dict or DictConfig); absent keys take their defaults."""
+        task = task if task is not None else {}
+        return cls(name=str(task.get("score") or "success"), unit=str(task.get("score_unit") or ""),
+                   ci=str(task.get("ci") or "auto"))
+
+    @classmethod
+    def from_summary(cls, summary: Mapping) -> ScoreSpec:
+        """The spec stored in a ``summary.json`` (summaries written before it: a success rate)."""
+        return cls(name=str(summary.get("score_name") or "success"),
+                   unit=str(summary.get("score_unit") or ""), ci=str(summary.get("ci") or "auto"))
+
+    @property
+    def binary(self) -> bool:
+        """Whether the candidate's score is a success rate."""
+        return self.name == "success" and not self.unit
+
+    @property
+    def title(self) -> str:
+        """What a candidate's score is, without its unit: ``success rate`` or ``mean opening``."""
+        return "success rate" if self.binary else f"mean {self.name}"
+
+    @property
+    def label(self) -> str:
+        """An axis or column label: ``success rate`` or ``mean opening (m)``."""
+        return self.title + (f" ({self.unit})" if self.unit else "")
+
+    def fmt(self, value: float | None, unit: bool = False) -> str:
+        """A score for people: ``0.81`` for a success rate, ``0.3512`` (``0.3512 m`` with ``unit``) else;
+        ``-`` for a missing or NaN score."""
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            return "-"
+        text = f"{value:.2f}" if self.binary else f"{value:.4g}"
+        return f"{text} {self.unit}" if unit and self.unit else text
+
+    def fields(self) -> dict:
+        """JSON fields naming the score (``summary.json``, ``evaluate``'s last line)."""
+        return {"score_name": self.name, "score_unit": self.unit, "ci": self.ci}

@@ -1,0 +1,189 @@
+"""The drawer task session: one GRT-Drawer-v1 env, seeded drawer-opening episodes, learning and evaluation.
+
+An episode (paper appendix, articulated manipulation): the drawer starts closed and the robot near its
+rest pose (±0.25 rad per joint); the policy commands joint deltas until the drawer is fully open
+(``success_opening``, 0.38 m of 0.39 m) or 500 control steps have passed. The trial's **score is the final
+opening in meters** (continuous): a red team sees graded failure. Every trial is also named:
+
+- ``success``: the drawer is fully open;
+- ``slipped``: the fingers held the handle at some point, then lost it, the drawer not fully open;
+- ``partial_open``: the drawer moved (> 2 cm) or is still held, but did not open fully in time;
+- ``missed_handle``: the TCP came to the grasp point (< 3 cm) but the fingers never held the handle;
+- ``timeout``: the policy never reached the handle;
+- ``sim_error``: a physics failure (non-finite state).
+
+The grasp point the policy observes is the *nominal* handle's (``handle_object``); a deformed handle
+is attached at the same mounting frame, so the policy does not see the deformation.
+"""
+
+from __future__ import annotations
+
+import gc
+
+import gymnasium as gym
+import numpy as np
+import trimesh
+
+from grt.tasks.base import EpisodeSession
+from grt.tasks.drawer_env import GRASP_ROT, HANDLE_ROT, MAX_OPENING, STATE_DIM, CabinetSpec, DrawerEnv
+
+__all__ = ["DrawerEnv", "DrawerSession", "HandleFitError", "handle_grasp_point"]
+
+MAX_GRIP = 0.07  # m: what the Panda's fingers (0.08 m) can close around, with a margin
+
+
+class HandleFitError(ValueError):
+    """A handle the drawer task cannot use (a user error: the message names the fix)."""
+
+
+def handle_grasp_point(spec: str, grasp_point=None) -> np.ndarray:
+    """The grasp point (m, handle frame) of a handle: the given one, else the built-in handle's.
+
+    Raises:
+        HandleFitError: a user's handle file without ``grasp_point``.
+    """
+    from grt.objects import BUILDERS, object_info
+
+    if grasp_point is not None:
+        point = np.asarray(list(grasp_point), np.float64)
+        if point.shape != (3,) or not np.all(np.isfinite(point)):
+            raise HandleFitError(f"task.session.grasp_point must be three numbers in meters, got {grasp_point!r}")
+        return point
+    known = object_info(spec).get("drawer") if spec in BUILDERS else None
+    if known is None:
+        raise HandleFitError(f"{spec!r} is no built-in drawer handle: give the point the gripper should pinch, in the "
+                             "handle's frame (m; z = 0 is the mounting plane on the drawer front), e.g. "
+                             "task.session.grasp_point=[0,0,0.032]")
+    return np.asarray(known["grasp"], np.float64)
+
+
+def check_handle(mesh: trimesh.Trimesh, grasp_point: np.ndarray, cabinet: CabinetSpec, what: str = "the handle") -> None:
+    """Refuse a handle that does not fit the drawer front, reaches into the drawer, or cannot be grasped.
+
+    Raises:
+        HandleFitError: naming the problem and the fix.
+    """
+    v = np.asarray(mesh.vertices, np.float64)
+    lo, hi = v.min(0), v.max(0)
+    width, height = cabinet.front_size[0], cabinet.front_size[1]
+    if lo[2] < -0.002:
+        raise HandleFitError(f"{what} reaches {-lo[2] * 1000:.0f} mm behind its mounting plane into the drawer front: "
+                             "in the handle frame z = 0 is the front and the handle stands on it (z >= 0); "
+                             "check the mesh's orientation and units")
+    if max(abs(lo[0]), abs(hi[0])) > width / 2 or max(abs(lo[1]), abs(hi[1])) > height / 2:
+        raise HandleFitError(f"{what} ({(hi[0] - lo[0]) * 1000:.0f} x {(hi[1] - lo[1]) * 1000:.0f} mm across the front) "
+                             f"does not fit the drawer front ({width * 1000:.0f} x {height * 1000:.0f} mm, centered): "
+                             "use a smaller handle, or check its units (meters) and centering")
+    if hi[2] > 0.15:
+        raise HandleFitError(f"{what} sticks out {hi[2] * 1000:.0f} mm from the drawer front (at most 150 mm): "
+                             "check its units (meters) and that z points out of the front")
+    # Across the fingers at the grasp point: the closing direction in the handle frame.
+    closing = HANDLE_ROT.T @ GRASP_ROT[:, 1]
+    near = v[np.abs(v[:, 0] - grasp_point[0]) < 0.005]
+    if len(near) == 0:
+        raise HandleFitError(f"{what} has no surface within 5 mm of the grasp point's x = {grasp_point[0]:.3f} m: "
+                             "set task.session.grasp_point on the handle's grip")
+    span = np.ptp(near @ closing)
+    if span > MAX_GRIP:
+        raise HandleFitError(f"{what} is {span * 1000:.0f} mm thick across the fingers at the grasp point; the Panda "
+                             f"closes around at most {MAX_GRIP * 1000:.0f} mm: use a thinner grip, or check its units")
+
+
+class DrawerSession(EpisodeSession):
+    """Drawer-opening episodes of one policy on one handle at a time.
+
+    Args:
+        policy: a :class:`grt.policies.base.Policy` (``None`` for a learning worker).
+        handle_object: the nominal handle (built-in name or mesh path): its grasp point is observed.
+        grasp_point: the nominal grasp point (m, handle frame); ``None``: the built-in handle's.
+        max_steps: control steps per episode (paper: 500).
+        cabinet: :class:`grt.tasks.drawer_env.CabinetSpec` fields to override.
+        env_id: the registered ManiSkill env; env: further :class:`DrawerEnv` arguments.
+        rebuild_each_trial: see :class:`grt.tasks.base.EpisodeSession`.
+    """
+
+    num_actions = 9
+    task_name = "drawer"
+    score_name = "opening"
+    obs_spec = {"state": (STATE_DIM,)}
+
+    def __init__(self, policy=None, handle_object: str = "drawer_handle", grasp_point=None, max_steps: int = 500,
+                 cabinet: dict | None = None, env_id: str = "GRT-Drawer-v1", env: dict | None = None,
+                 rebuild_each_trial: bool = True):
+        super().__init__(policy, max_steps, rebuild_each_trial)
+        from grt.geometry.mesh import load_mesh
+
+        self.grasp_point = handle_grasp_point(str(handle_object), grasp_point)
+        self.cabinet = CabinetSpec(**(cabinet or {}))
+        check_handle(load_mesh(handle_object), self.grasp_point, self.cabinet, "the nominal handle")
+        self.obs_spec = self.observation_spec()
+        self._check_policy()
+        self.env = gym.make(env_id, obs_mode="none", sim_backend="physx_cpu", render_backend="cpu",
+                            reward_mode="dense", grasp_point=tuple(self.grasp_point), cabinet=dict(cabinet or {}),
+                            **(env or {}))
+        self.unwrapped: DrawerEnv = self.env.unwrapped
+        self._object_changed = True
+        gc.collect()
+        gc.freeze()  # ManiSkill's reconfigure runs gc.collect(): keep the long-lived heap out of it
+
+    @classmethod
+    def check_object(cls, mesh: trimesh.Trimesh, handle_object: str = "drawer_handle", grasp_point=None,
+                     cabinet: dict | None = None, **_) -> None:
+        """The handle must fit the drawer front and the gripper (see :class:`HandleFitError`)."""
+        from grt.geometry.mesh import load_mesh
+
+        point = handle_grasp_point(str(handle_object), grasp_point)
+        spec = CabinetSpec(**(cabinet or {}))
+        check_handle(load_mesh(handle_object), point, spec, "the nominal handle")
+        check_handle(mesh, point, spec)
+
+    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
+        self.unwrapped.set_object(mesh, parts)
+        self._object_changed = True
+
+    def close(self) -> None:
+        self.env.close()
+
+    def render(self, path: str) -> None:
+        """Write a PNG of the scene as it is now, 512 x 512."""
+        from PIL import Image
+
+        image = self.unwrapped.render_rgb_array()
+        Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
+
+    # --- EpisodeSession hooks ------------------------------------------------------------------------
+    def _reset_env(self, seed: int, rebuild: bool) -> None:
+        self.env.reset(seed=seed, options=dict(reconfigure=rebuild or self._object_changed))
+        self._object_changed = False
+        self._held = self._reached = False
+
+    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
+        _, reward, _, _, info = self.env.step(action)
+        state = {k: float(info[k][0]) for k in ("opening", "drawer_vel", "tcp_to_grasp", "finger_width")}
+        state["holding"] = bool(info["holding"][0])
+        self._held |= state["holding"]
+        self._reached |= state["tcp_to_grasp"] < 0.03
+        state.update(ever_held=self._held, reached=self._reached)
+        return float(reward[0]), bool(info["success"][0]), state
+
+    def observe(self) -> dict[str, np.ndarray]:
+        return self.unwrapped.task_obs()
+
+    def score(self, success: bool, info: dict) -> float:
+        return float(info["opening"])
+
+    def judge(self, success: bool, info: dict) -> str:
+        if success:
+            return "success"
+        if info["ever_held"] and not info["holding"]:
+            return "slipped"
+        if info["holding"] or info["opening"] > 0.02:
+            return "partial_open"
+        if info["reached"]:
+            return "missed_handle"
+        return "timeout"
+
+    def _check(self, info: dict) -> None:
+        super()._check(info)
+        if not -0.01 <= info["opening"] <= MAX_OPENING + 0.01:
+            raise RuntimeError(f"the drawer left its slide (opening {info['opening']:.3f} m)")
