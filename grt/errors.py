@@ -23,9 +23,9 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from grt.policies.rsl_rl import CheckpointError
     from grt.scores import ScoreConfigError
     from grt.selectors.client import VLMError
-    from grt.tasks.socket import PlugFitError
+    from grt.tasks.base import TaskInputError
 
-    return (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError, CheckpointError, PlugFitError,
+    return (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError, CheckpointError, TaskInputError,
             BlueTeamError, ScoreConfigError)
 
 

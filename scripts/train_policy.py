@@ -6,7 +6,9 @@
 
 The run folder gets ``metrics.csv`` (one row per PPO iteration), ``last.pt`` / ``best.pt`` (rsl-rl
 checkpoints with the GRT config inside, resumable), ``curve.png`` (training curve), ``train.json``
-(figures) and, when ``eval_trials > 0``, ``evaluation.json``: the exported policy scored on seeded
+(figures), with ``train.validation`` also ``val_best.pt`` (the deterministic policy that scored best
+on held-out validation episodes, checked every few iterations and before the first: the exported
+one) and, when ``eval_trials > 0``, ``evaluation.json``: the exported policy scored on seeded
 episodes through the same evaluator as ``python -m grt.evaluate``. The exported policy file
 (``train.export``, no optimizer state) is what ``conf/policy/<name>.yaml`` points at.
 """
@@ -47,6 +49,8 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
     expert = instantiate(cfg.train.bc.expert) if bc else None
     logger = instantiate(cfg.logger)
     logger.start(out_dir, name=f"train-{train_cfg['name']}", config=_plain(cfg))
+    val = train_cfg.get("validation") or {}
+    validate, session = (None, None) if not val else _validator(task, mesh, parts, int(val["trials"]))
     try:
         result = train(env, train_cfg, out_dir, task_name=cfg.task.name, task_cfg=task,
                        iterations=train_cfg["iterations"], init_checkpoint=cfg.init_checkpoint,
@@ -54,11 +58,16 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
                        patience=train_cfg["patience"], extra={"policy_name": train_cfg["name"],
                                                               "object": str(cfg.object)},
                        on_iteration=lambda row: logger.log_iteration(row["iteration"], row), expert=expert,
-                       bc={k: v for k, v in (bc or {}).items() if k != "expert"})
+                       bc={k: v for k, v in (bc or {}).items() if k != "expert"}, validate=validate,
+                       val_interval=int(val.get("interval", 10)), val_patience=int(val.get("patience", 5)),
+                       val_perfect=1.0 if str(cfg.task.get("score", "success")) == "success" else None)
     finally:
         env.close()
+        if session is not None:
+            session.close()
     plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title=f"{train_cfg['name']} on {cfg.object}")
-    best = out_dir / ("best.pt" if (out_dir / "best.pt").exists() else "last.pt")
+    best = next(out_dir / f for f in ("val_best.pt", "best.pt", "last.pt") if (out_dir / f).exists())
+    result["selected"] = best.name
     policy_file = export_policy(best, out_dir / "policy.pt", metrics=result)
     if cfg.eval_trials:
         result["evaluation"] = _evaluate(cfg, policy_file, mesh, out_dir)
@@ -70,6 +79,27 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
     logger.log_summary({k: v for k, v in result.items() if not isinstance(v, dict)})
     logger.finish()
     return result
+
+
+def _validator(task: dict, mesh, parts, trials: int):
+    """``checkpoint -> mean score`` of the deterministic policy on ``trials`` validation episodes (seeds
+    disjoint from the evaluation's), in one session of this process; and the session."""
+    import numpy as np
+
+    from grt.evaluators.pool import build_session
+    from grt.policies.rsl_rl import RslRlPolicy
+
+    session = build_session(task, None)
+    session.load_object(mesh, parts)
+    seeds = [10_000 + i for i in range(trials)]
+
+    def validate(path: Path) -> float:
+        session.policy = RslRlPolicy(str(path), task=task["name"])
+        score = float(np.mean([session.run_trial(s).score for s in seeds]))
+        log.info("validation of %s: %.4g", path.name, score)
+        return score
+
+    return validate, session
 
 
 def _evaluate(cfg: DictConfig, policy_file: Path, mesh, out_dir: Path) -> dict:
@@ -87,7 +117,8 @@ def _evaluate(cfg: DictConfig, policy_file: Path, mesh, out_dir: Path) -> dict:
     summary = {**res.summary(), "wall_s": time.perf_counter() - start}
     write_json(out_dir / "evaluation.json", {**summary, "seeds": seeds,
                                             "trials": [t.__dict__ for t in res.trials]})
-    log.info("evaluation over %d trials: success %.3f %s", len(seeds), summary["success_rate"], summary["outcomes"])
+    log.info("evaluation over %d trials: score %.4g, success %.3f %s", len(seeds), summary["score"],
+             summary["success_rate"], summary["outcomes"])
     return summary
 
 
@@ -102,7 +133,8 @@ def main(cfg: DictConfig) -> float:
           f"best training success {result['best_success']:.2f}; files in {out_dir}")
     ev = result.get("evaluation")
     if ev:
-        print(f"evaluation: success {ev['success_rate']:.3f} over {ev['trials']} trials {ev['outcomes']}")
+        print(f"evaluation: {cfg.task.score} {ev['score']:.4g} (success {ev['success_rate']:.3f}) over "
+              f"{ev['trials']} trials {ev['outcomes']}")
     return float(result["best_success"])
 
 

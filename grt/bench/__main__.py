@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-BENCHMARKS = ("deform", "grasp", "insertion")
+BENCHMARKS = ("deform", "grasp", "insertion", "drawer")
 
 
 def main(argv: list[str] | None = None) -> None:

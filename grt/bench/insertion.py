@@ -23,12 +23,22 @@ from grt.bench.grasp import compose
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m grt.bench insertion", description=__doc__,
+    from grt.policies.servo import ServoInsertionPolicy
+
+    episode_bench(argv, "insertion", "insertion_state", "usb_plug", ServoInsertionPolicy, __doc__)
+
+
+def episode_bench(argv: list[str] | None, task_name: str, default_policy: str, default_object: str,
+                  scripted, doc: str | None) -> dict:
+    """The benchmark of a closed-loop task (``EpisodeSession``): simulation speed with the analytic
+    policy ``scripted()``, trials/s in process (baseline) and through the worker pool; prints the
+    figures and, last, one JSON line; returns the figures."""
+    ap = argparse.ArgumentParser(prog=f"python -m grt.bench {task_name}", description=doc,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--trials", type=int, default=32, help="trials per measurement (default 32)")
     ap.add_argument("--workers", type=int, default=2, help="evaluator worker processes (default 2)")
-    ap.add_argument("--policy", default="insertion_state", help="policy config name (default insertion_state)")
-    ap.add_argument("--object", default="usb_plug", help="plug (default usb_plug)")
+    ap.add_argument("--policy", default=default_policy, help=f"policy config name (default {default_policy})")
+    ap.add_argument("--object", default=default_object, help=f"object (default {default_object})")
     args = ap.parse_args(argv)
 
     from omegaconf import OmegaConf
@@ -37,24 +47,23 @@ def main(argv: list[str] | None = None) -> None:
     from grt.evaluators.pool import build_session
     from grt.evaluators.sim import SimEvaluator
     from grt.geometry.mesh import load_mesh
-    from grt.policies.servo import ServoInsertionPolicy
     from grt.redteam import episode_seeds
 
-    cfg = compose(["task=insertion", f"policy={args.policy}", f"object={args.object}"])
+    cfg = compose([f"task={task_name}", f"policy={args.policy}", f"object={args.object}"])
     task, policy_cfg = (OmegaConf.to_container(cfg[k], resolve=True) for k in ("task", "policy"))
     mesh = load_mesh(cfg.object)
-    # the parts the evaluator simulates the nominal plug with (its "fast" collision), for both measurements
+    # the parts the evaluator simulates the nominal object with (its "fast" collision), for both measurements
     parts = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64).parts(mesh)
     seeds = episode_seeds(42, args.trials)
 
     session = build_session(task, policy_cfg)
     session.load_object(mesh, parts)
-    servo, steps = ServoInsertionPolicy(), 0
+    expert, steps = scripted(), 0
     start = time.perf_counter()
     for seed in seeds[:8]:
         obs = session.reset(seed)
         for _ in range(40):
-            obs, *_ = session.step(servo.act({k: v[None] for k, v in obs.items()})[0])
+            obs, *_ = session.step(expert.act({k: v[None] for k, v in obs.items()})[0])
             steps += 1
     sim_rate = steps / (time.perf_counter() - start)
     start = time.perf_counter()
@@ -71,21 +80,24 @@ def main(argv: list[str] | None = None) -> None:
         result = ev.evaluate([mesh], seeds)[0]
         pool_s = time.perf_counter() - start
     figures = {
-        "policy": args.policy, "object": str(cfg.object), "trials": args.trials, "workers": args.workers,
-        "sim_steps_per_s": round(sim_rate, 1),
+        "task": task_name, "policy": args.policy, "object": str(cfg.object), "trials": args.trials,
+        "workers": args.workers, "sim_steps_per_s": round(sim_rate, 1),
         "inprocess_trials_per_s": round(args.trials / local_s, 3),
         "pool_trials_per_s": round(args.trials / pool_s, 3),
         "speedup_vs_inprocess": round(local_s / pool_s, 2),
         "mean_steps_per_trial": round(float(np.mean([t.info.get("steps", 0) for t in result.trials])), 1),
-        "success_rate": result.success_rate, "inprocess_success_rate": float(np.mean([t.success for t in local])),
+        "score": result.score, "success_rate": result.success_rate,
+        "inprocess_success_rate": float(np.mean([t.success for t in local])),
         "worker_startup_s": round(startup_s, 2),
     }
     print(f"simulation      {figures['sim_steps_per_s']:.0f} control steps/s (this process)")
     print(f"in process      {figures['inprocess_trials_per_s']:.2f} trials/s (baseline)")
     print(f"{args.workers} workers       {figures['pool_trials_per_s']:.2f} trials/s = "
           f"{figures['speedup_vs_inprocess']:.2f}x the baseline (after {startup_s:.1f} s start-up)")
-    print(f"success         {result.success_rate:.3f} ({figures['mean_steps_per_trial']:.0f} steps per trial)")
+    print(f"score           {result.score:.4g} {cfg.task.get('score_unit') or ''}, success {result.success_rate:.3f} "
+          f"({figures['mean_steps_per_trial']:.0f} steps per trial)")
     print(json.dumps(figures))
+    return figures
 
 
 if __name__ == "__main__":

@@ -161,7 +161,8 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
                                                                                    "task")},
                               "blueteam": {"from": checkpoint, "shapes": [g.name for g in shapes],
                                            "weights": weights}},
-                       validate=validate, val_interval=int(bt.val_interval), val_patience=int(bt.val_patience))
+                       validate=validate, val_interval=int(bt.val_interval), val_patience=int(bt.val_patience),
+                       val_perfect=1.0 if str(task.get("score", "success")) == "success" else None)
     finally:
         env.close()
         session.close()

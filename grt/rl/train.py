@@ -48,7 +48,7 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
           iterations: int, init_checkpoint: str | None = None, save_interval: int = 10,
           target_success: float | None = None, patience: int = 20, extra: dict | None = None,
           on_iteration=None, expert=None, bc: dict | None = None, validate=None, val_interval: int = 10,
-          val_patience: int = 3) -> dict:
+          val_patience: int = 3, val_perfect: float | None = 1.0) -> dict:
     """Train (or resume) a PPO policy; returns ``{"iterations", "steps", "best_success", "wall_s", ...}``.
 
     Args:
@@ -69,7 +69,8 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
         validate: ``checkpoint path -> score`` on held-out validation episodes, called every
             ``val_interval`` iterations (and before the first): the best is kept as ``val_best.pt``
             and training stops after ``val_patience`` validations without improvement, or at a
-            perfect score (early stopping, as the paper's fine-tuning).
+            perfect score ``val_perfect`` (early stopping, as the paper's fine-tuning; ``None``: a
+            continuous score has no perfect value, e.g. a drawer opening).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -103,7 +104,7 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
     started = time.perf_counter()
     bar = tqdm(total=iterations, initial=start_it, desc="ppo", unit="it", dynamic_ncols=True)
     stopped_early = False
-    val = _Validation(validate, out, val_patience)
+    val = _Validation(validate, out, val_patience, val_perfect)
     if validate is not None and start_it == 0:
         _save(runner, out / "val_current.pt", -1, {**cfg, "best_success": best})
         val.check(-1, out / "val_current.pt")
@@ -150,8 +151,8 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
 class _Validation:
     """Early stopping on validation episodes: keeps ``val_best.pt``, counts validations without gain."""
 
-    def __init__(self, validate, out: Path, patience: int):
-        self.validate, self.out, self.patience = validate, out, int(patience)
+    def __init__(self, validate, out: Path, patience: int, perfect: float | None = 1.0):
+        self.validate, self.out, self.patience, self.perfect = validate, out, int(patience), perfect
         state = out / "validation.json"
         saved = json.loads(state.read_text()) if state.exists() else {}
         self.history: list = saved.get("history", [])
@@ -169,7 +170,7 @@ class _Validation:
             self.stale += 1
         write_json(self.out / "validation.json", {"history": self.history, "stale": self.stale, "best": self.best})
         log.info("validation at iteration %d: %.3f (best %.3f)", it + 1, score, self.best)
-        return self.best >= 1.0 or self.stale >= self.patience
+        return (self.perfect is not None and self.best >= self.perfect) or self.stale >= self.patience
 
 
 def behavior_clone(runner: OnPolicyRunner, env: TaskVecEnv, expert, steps: int, epochs: int = 50,

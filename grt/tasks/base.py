@@ -44,6 +44,10 @@ FAILURE_MODES = (
 )
 
 
+class TaskInputError(ValueError):
+    """An object or task setting the task cannot use (a user error: the message names the fix)."""
+
+
 @dataclass
 class TrialOutcome:
     """The result of one seeded trial.

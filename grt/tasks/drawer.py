@@ -24,7 +24,7 @@ import gymnasium as gym
 import numpy as np
 import trimesh
 
-from grt.tasks.base import EpisodeSession
+from grt.tasks.base import EpisodeSession, TaskInputError
 from grt.tasks.drawer_env import GRASP_ROT, HANDLE_ROT, MAX_OPENING, STATE_DIM, CabinetSpec, DrawerEnv
 
 __all__ = ["DrawerEnv", "DrawerSession", "HandleFitError", "handle_grasp_point"]
@@ -32,7 +32,7 @@ __all__ = ["DrawerEnv", "DrawerSession", "HandleFitError", "handle_grasp_point"]
 MAX_GRIP = 0.07  # m: what the Panda's fingers (0.08 m) can close around, with a margin
 
 
-class HandleFitError(ValueError):
+class HandleFitError(TaskInputError):
     """A handle the drawer task cannot use (a user error: the message names the fix)."""
 
 

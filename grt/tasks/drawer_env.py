@@ -283,20 +283,21 @@ class DrawerEnv(BaseEnv):
                     **{k: torch.tensor([v]) for k, v in s.items()})
 
     def compute_dense_reward(self, obs, action, info):
-        """``-0.5 tanh(d / 0.1) - 2 (1 - opening / 0.39) + 0.25 holding + 10 success - 0.01 |a|^2``.
+        """``0.1 x (-0.5 tanh(d / 0.1) - 2 (1 - opening / 0.39) + 0.25 holding + 10 success - 0.01 |a|^2)``.
 
         ``d``: TCP to the nominal grasp point (m). Every step costs until the drawer is open and the
         episode ends at success, so finishing sooner pays (a positive per-step reward for a partly open
-        drawer would pay the policy to stop short of the end).
+        drawer would pay the policy to stop short of the end). Scaled by 0.1 so that returns stay
+        within about -100..1 (PPO's value targets; rsl-rl does not normalize rewards).
         """
         reach = -0.5 * torch.tanh(info["tcp_to_grasp"].float() / 0.1)
         closed = 1.0 - info["opening"].float() / MAX_OPENING
         act = torch.as_tensor(action, dtype=torch.float32).reshape(1, -1)
-        return (reach - 2.0 * closed + 0.25 * info["holding"].float() + 10.0 * info["success"].float()
-                - 0.01 * (act ** 2).sum(-1))
+        return 0.1 * (reach - 2.0 * closed + 0.25 * info["holding"].float() + 10.0 * info["success"].float()
+                      - 0.01 * (act ** 2).sum(-1))
 
     def compute_normalized_dense_reward(self, obs, action, info):
-        return self.compute_dense_reward(obs, action, info) / 10.0
+        return self.compute_dense_reward(obs, action, info)
 
     def _get_obs_extra(self, info: dict) -> dict:
         return {}

@@ -17,8 +17,10 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull
 
+from grt.tasks.base import TaskInputError
 
-class PlugFitError(ValueError):
+
+class PlugFitError(TaskInputError):
     """The plug cannot be inserted into a socket built for it (too wide, no head)."""
 
 
