@@ -1,30 +1,62 @@
-"""Crash-safe, append-only record of every evaluated candidate (``journal.jsonl``).
+"""Crash-safe, append-only, tamper-evident record of every evaluated candidate (``journal.jsonl``).
 
 One JSON object per line, flushed and fsync'ed as each candidate finishes, so killing a run at any
 moment (even ``kill -9``) loses no finished evaluation. On reading, a truncated **last** line (the
-write that was interrupted) is detected, reported and cut off; a corrupt line anywhere else means the
-file was edited or damaged, and is an error that names the line.
+write that was interrupted) is detected, reported and cut off.
+
+A resume trusts the journal's scores (it replays them instead of simulating again), so each line
+carries ``sha256``: the SHA-256 of the previous line's checksum and this record's canonical JSON (keys
+sorted, no spaces, without ``sha256``). An edited score, a removed or reordered line, or a damaged
+line anywhere is refused with its line number: the run's results would otherwise be rewritten from
+numbers no simulation produced. Lines written before checksums existed load unchecked (a warning),
+so old run folders keep working; once a checked line appears, every later line must be checked.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import logging
 import os
 from pathlib import Path
+
+log = logging.getLogger("grt.journal")
+
+CHECKSUM = "sha256"
 
 
 class JournalError(RuntimeError):
     """The journal cannot be used as it is; the message names the line and the fix."""
 
 
+def chain_checksum(previous: str, record: dict) -> str:
+    """The checksum of ``record`` (without its own ``sha256``) chained to the previous line's checksum.
+
+    Args:
+        previous: hex checksum of the line before (``""`` for the first line).
+        record: the journal record; a ``sha256`` key in it is ignored.
+
+    Returns:
+        64 hex characters.
+    """
+    body = {k: v for k, v in record.items() if k != CHECKSUM}
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(f"{previous}\n{canonical}".encode()).hexdigest()
+
+
 class Journal:
     """Read and append candidate records.
 
     Every record has at least ``iteration`` (0 for the nominal object, then ``1..T``), ``candidate``
-    (index within its iteration) and ``score``.
+    (index within its iteration) and ``score``. Records in :attr:`records` are the appended ones
+    (without the ``sha256`` that only exists on disk).
 
     Args:
         path: the ``journal.jsonl`` file (created when missing).
+
+    Raises:
+        JournalError: a line (not the interrupted last one) is not JSON, not a GRT record, or fails
+            its checksum.
     """
 
     REQUIRED = ("iteration", "candidate", "score")
@@ -33,7 +65,9 @@ class Journal:
         self.path = Path(path)
         self.records: list[dict] = []
         self._index: dict[tuple[int, int], dict] = {}
+        self._head = ""  # checksum of the last line, chained into the next one
         self.recovered_truncated_line = False
+        self.unchecked_lines = 0  # lines written before checksums existed
         if self.path.exists():
             self._load()
 
@@ -41,35 +75,62 @@ class Journal:
         raw = self.path.read_bytes()
         lines = raw.split(b"\n")
         complete, tail = lines[:-1], lines[-1]  # tail: bytes after the last newline
+        offset, checked = 0, False
         for n, line in enumerate(complete, start=1):
+            start, offset = offset, offset + len(line) + 1
             if not line.strip():
                 continue
             try:
                 rec = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise JournalError(f"{self.path}: line {n} is not valid JSON ({exc}); the journal is "
-                                   "corrupted. Remove that line (its candidate will be re-evaluated) "
-                                   "or start a new run.") from exc
+            except ValueError as exc:  # bad JSON or bytes that are not UTF-8
+                raise self._modified(n, start, f"not valid JSON: {exc}") from exc
+            if not isinstance(rec, dict):
+                raise self._modified(n, start, "not a JSON object")
             missing = [k for k in self.REQUIRED if k not in rec]
             if missing:
                 raise JournalError(f"{self.path}: line {n} lacks {missing}; not a GRT journal record.")
+            stored = rec.pop(CHECKSUM, None)
+            expected = chain_checksum(self._head, rec)
+            if stored is None and checked:
+                raise self._modified(n, start, "its checksum was removed")
+            if stored is not None and stored != expected:
+                raise self._modified(n, start, "its checksum does not match its content or the line before")
+            checked = checked or stored is not None
+            self.unchecked_lines += stored is None
+            self._head = expected
             self._add(rec)
+        if self.unchecked_lines:
+            log.warning("%s: %d line(s) written before journals had checksums; loaded unchecked",
+                        self.path, self.unchecked_lines)
         if tail.strip():
             # An interrupted write: the candidate was not finished. Cut it so appends stay valid.
             self.recovered_truncated_line = True
             with open(self.path, "r+b") as f:
                 f.truncate(len(raw) - len(tail))
 
+    def _modified(self, n: int, start: int, why: str) -> JournalError:
+        """The one-line error for line ``n`` (starting at byte ``start``) and the way out."""
+        return JournalError(
+            f"journal line {n} was modified or corrupted ({why}): {self.path}. Its scores cannot be trusted "
+            f"for a resume. Either keep the {n - 1} line(s) before it (`truncate -s {start} {self.path}`) and "
+            "resume, which re-evaluates the candidates from that line on, or start a new run.")
+
     def append(self, record: dict) -> None:
-        """Append one record and make it durable before returning."""
+        """Append one record (with its chained checksum) and make it durable before returning."""
         missing = [k for k in self.REQUIRED if k not in record]
         if missing:
             raise ValueError(f"journal record lacks {missing}")
-        line = json.dumps(record, separators=(",", ":"), allow_nan=True) + "\n"
+        if CHECKSUM in record:
+            raise ValueError(f"journal record must not carry {CHECKSUM!r}: the journal computes it")
+        # Checksummed as it will read back (tuples as lists, keys as strings), so a reload verifies.
+        as_read = json.loads(json.dumps(record, allow_nan=True))
+        checksum = chain_checksum(self._head, as_read)
+        line = json.dumps({**record, CHECKSUM: checksum}, separators=(",", ":"), allow_nan=True) + "\n"
         with open(self.path, "a", encoding="utf-8") as f:
             f.write(line)
             f.flush()
             os.fsync(f.fileno())
+        self._head = checksum
         self._add(record)
 
     def _add(self, record: dict) -> None:

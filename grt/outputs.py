@@ -1,9 +1,20 @@
-"""What a run leaves in its folder: summary.json, crashshapes/, curve.png, shapes.png, git state."""
+"""What a run leaves in its folder: summary.json, crashshapes/, curve.png, shapes.png, git state.
+
+Every file is written under a temporary name and renamed into place, so a run killed while writing
+leaves the previous version or the new one, never half a file. A resumed run rewrites all of them and
+removes the CrashShapes of an earlier writing that are no longer among the lowest scores.
+"""
 
 from __future__ import annotations
 
 import json
+import os
+import re
+import secrets
+import shutil
 import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +39,37 @@ def git_state() -> dict:
     return {"commit": commit, "dirty": dirty} if commit else {}
 
 
+@contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary name next to ``path`` to write to; renamed onto ``path`` when the block succeeds.
+
+    The temporary name keeps ``path``'s suffix (writers such as ``trimesh.export`` and ``savefig``
+    pick the format by it) and is removed when the block raises.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
+    try:
+        yield tmp
+        with open(tmp, "rb") as f:  # durable before it replaces the old version
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+# What save_crashshapes writes per shape: rank<r>_it<t>_c<i>.stl / .obj and the _parts folder, and
+# the temporary names of atomic_path (left behind only by a kill -9 in the middle of a write).
+_TEMP = r"\..+\.[0-9a-f]{8}\.tmp(\.\w+)?"
+_CRASHSHAPE = re.compile(rf"rank\d+_it\d+_c\d+(\.stl|\.obj|_parts)|{_TEMP}")
+_PART = re.compile(rf"part\d+\.obj|{_TEMP}")
+
+
 def crash_records(records: list[dict], k: int) -> list[dict]:
     """The ``k`` lowest-scoring explored candidates (iterations >= 1), earliest first among ties."""
     explored = [r for r in records if r["iteration"] >= 1 and r["score"] == r["score"]]  # not NaN
@@ -35,24 +77,46 @@ def crash_records(records: list[dict], k: int) -> list[dict]:
 
 
 def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], evaluator) -> list[dict]:
-    """Write each CrashShape in meters (watertight STL + OBJ, and the convex parts it was simulated with)."""
+    """Write each CrashShape in meters (watertight STL + OBJ, and the convex parts it was simulated with).
+
+    CrashShape files in ``crashshapes/`` that this call did not write (an earlier writing's ranks) are
+    removed afterwards, so the folder always matches ``summary.json``.
+    """
     out = run_dir / "crashshapes"
     out.mkdir(exist_ok=True)
-    saved = []
+    saved, written = [], set()
     for rank, (rec, mesh) in enumerate(zip(best, meshes, strict=True), start=1):
         stem = f"rank{rank}_it{rec['iteration']}_c{rec['candidate']}"
-        mesh.export(out / f"{stem}.stl")
-        mesh.export(out / f"{stem}.obj")
+        for ext in ("stl", "obj"):
+            with atomic_path(out / f"{stem}.{ext}") as tmp:
+                mesh.export(tmp, file_type=ext)
         entry = {"rank": rank, "file": f"crashshapes/{stem}.stl", "score": rec["score"],
                  "iteration": rec["iteration"], "candidate": rec["candidate"],
                  "watertight": bool(mesh.is_watertight), "smoothness_m": rec.get("smoothness_m")}
         parts_dir = out / f"{stem}_parts"
         parts_dir.mkdir(exist_ok=True)
+        parts = set()
         for j, verts in enumerate(evaluator.collision_parts(mesh)):
-            trimesh.convex.convex_hull(verts).export(parts_dir / f"part{j:02d}.obj")
+            with atomic_path(parts_dir / f"part{j:02d}.obj") as tmp:
+                trimesh.convex.convex_hull(verts).export(tmp, file_type="obj")
+            parts.add(f"part{j:02d}.obj")
+        _remove_except(parts_dir, parts, _PART)
         entry["parts"] = f"crashshapes/{stem}_parts"
         saved.append(entry)
+        written |= {f"{stem}.stl", f"{stem}.obj", f"{stem}_parts"}
+    _remove_except(out, written, _CRASHSHAPE)
     return saved
+
+
+def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
+    """Remove the entries of ``folder`` named like ``pattern`` that are not in ``keep``."""
+    for entry in folder.iterdir():
+        if entry.name in keep or not pattern.fullmatch(entry.name):
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
 
 
 def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, evaluator, wall_s: float) -> dict:
@@ -87,13 +151,15 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
     summary["crashshapes"] = save_crashshapes(run_dir, best, meshes, evaluator)
     # The handle/anchor sets travel with the shapes (indices into every CrashShape's vertices).
-    (run_dir / "crashshapes" / "handles.json").write_text(handle_set.to_json())
+    write_text_atomic(run_dir / "crashshapes" / "handles.json", handle_set.to_json())
     title = f"{summary['task']} / {summary['object']} / {summary['selector']}-{summary['optimizer']}"
-    plot_curve(result.s0, result.iteration_scores, run_dir / "curve.png", title=title, score=score)
+    with atomic_path(run_dir / "curve.png") as tmp:
+        plot_curve(result.s0, result.iteration_scores, tmp, title=title, score=score)
     shapes = [(m, f"it {r['iteration']}: {score.title} {score.fmt(r['score'], unit=True)}")
               for r, m in zip(best, meshes, strict=True)]
-    plot_shapes(deformer.mesh, shapes, run_dir / "shapes.png", handles=handle_set.handles)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True))
+    with atomic_path(run_dir / "shapes.png") as tmp:
+        plot_shapes(deformer.mesh, shapes, tmp, handles=handle_set.handles)
+    write_text_atomic(run_dir / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
     return summary
 
 
