@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import socket
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -17,7 +18,9 @@ class ChatServer:
     """A threaded HTTP server on 127.0.0.1 speaking the OpenAI chat-completions protocol.
 
     ``replies`` is a list of assistant texts served in order (the last one repeats), or a callable
-    ``(request_json) -> str``. Every request body and its headers are kept in ``requests``.
+    ``(request_json) -> str``; a ``(status, content_type, body_bytes)`` reply is sent as it is
+    instead of a chat completion (an error body, HTML, garbage). Every request body and its
+    headers are kept in ``requests``.
     """
 
     def __init__(self, replies):
@@ -35,6 +38,14 @@ class ChatServer:
                     self.send_error(404)
                     return
                 text = server.reply(body)
+                if isinstance(text, tuple):
+                    status, content_type, raw = text
+                    self.send_response(status)
+                    self.send_header("Content-Type", content_type)
+                    self.send_header("Content-Length", str(len(raw)))
+                    self.end_headers()
+                    self.wfile.write(raw)
+                    return
                 payload = json.dumps({
                     "id": f"chatcmpl-{len(server.requests)}", "object": "chat.completion",
                     "created": int(time.time()), "model": body["model"],
@@ -78,6 +89,42 @@ def chat_server():
     yield start
     for s in servers:
         s.stop()
+
+
+class HungServer:
+    """A TCP server on 127.0.0.1 that accepts every connection, reads nothing and never answers."""
+
+    def __init__(self):
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.base_url = f"http://127.0.0.1:{self.sock.getsockname()[1]}/v1"
+        self.connections: list[socket.socket] = []
+        self.stopped = threading.Event()
+        self.thread = threading.Thread(target=self._accept, daemon=True)
+        self.thread.start()
+
+    def _accept(self) -> None:
+        while not self.stopped.is_set():
+            try:
+                self.connections.append(self.sock.accept()[0])
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+
+    def stop(self) -> None:
+        self.stopped.set()
+        self.thread.join(timeout=5)
+        for conn in [*self.connections, self.sock]:
+            conn.close()
+
+
+@pytest.fixture
+def hung_server():
+    """A :class:`HungServer`, stopped after the test."""
+    server = HungServer()
+    yield server
+    server.stop()
 
 
 @pytest.fixture
