@@ -60,6 +60,7 @@ def run(cfg: DictConfig, out_dir: Path) -> dict:
                        on_iteration=lambda row: logger.log_iteration(row["iteration"], row), expert=expert,
                        bc={k: v for k, v in (bc or {}).items() if k != "expert"}, validate=validate,
                        val_interval=int(val.get("interval", 10)), val_patience=int(val.get("patience", 5)),
+                       val_tie=val.get("tie"),
                        val_perfect=1.0 if str(cfg.task.get("score", "success")) == "success" else None)
     finally:
         env.close()

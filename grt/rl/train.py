@@ -48,7 +48,7 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
           iterations: int, init_checkpoint: str | None = None, save_interval: int = 10,
           target_success: float | None = None, patience: int = 20, extra: dict | None = None,
           on_iteration=None, expert=None, bc: dict | None = None, validate=None, val_interval: int = 10,
-          val_patience: int = 3, val_perfect: float | None = 1.0) -> dict:
+          val_patience: int = 3, val_perfect: float | None = 1.0, val_tie: float | None = None) -> dict:
     """Train (or resume) a PPO policy; returns ``{"iterations", "steps", "best_success", "wall_s", ...}``.
 
     Args:
@@ -70,7 +70,9 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
             ``val_interval`` iterations (and before the first): the best is kept as ``val_best.pt``
             and training stops after ``val_patience`` validations without improvement, or at a
             perfect score ``val_perfect`` (early stopping, as the paper's fine-tuning; ``None``: a
-            continuous score has no perfect value, e.g. a drawer opening).
+            continuous score has no perfect value, e.g. a drawer opening). ``val_tie``: a later
+            checkpoint within this much of the best replaces ``val_best.pt`` (the validation cannot tell
+            them apart: the more trained one is kept), though it does not count as a gain.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -97,6 +99,11 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
         log.info("behaviour-cloning warm start: %s", warm)
         cfg["warm_start"] = warm
         write_json(out / "warm_start.json", warm)
+    if train_cfg.get("freeze_normalization"):
+        # The actor was fitted (warm start, or the checkpoint fine-tuned) under these statistics: PPO's
+        # rollouts would move them and with them every input of the fixed weights.
+        runner.alg.get_policy().update_normalization = lambda obs: None
+        runner.alg.critic.update_normalization = lambda obs: None
     metrics_path = out / "metrics.csv"
     rows = _read_rows(metrics_path, start_it)
     recent: deque = deque(maxlen=max(1, patience))
@@ -104,7 +111,7 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
     started = time.perf_counter()
     bar = tqdm(total=iterations, initial=start_it, desc="ppo", unit="it", dynamic_ncols=True)
     stopped_early = False
-    val = _Validation(validate, out, val_patience, val_perfect)
+    val = _Validation(validate, out, val_patience, val_perfect, val_tie)
     if validate is not None and start_it == 0:
         _save(runner, out / "val_current.pt", -1, {**cfg, "best_success": best})
         val.check(-1, out / "val_current.pt")
@@ -151,8 +158,8 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
 class _Validation:
     """Early stopping on validation episodes: keeps ``val_best.pt``, counts validations without gain."""
 
-    def __init__(self, validate, out: Path, patience: int, perfect: float | None = 1.0):
-        self.validate, self.out, self.patience, self.perfect = validate, out, int(patience), perfect
+    def __init__(self, validate, out: Path, patience: int, perfect: float | None = 1.0, tie: float | None = None):
+        self.validate, self.out, self.patience, self.perfect, self.tie = validate, out, int(patience), perfect, tie
         state = out / "validation.json"
         saved = json.loads(state.read_text()) if state.exists() else {}
         self.history: list = saved.get("history", [])
@@ -163,11 +170,14 @@ class _Validation:
         """Validate ``checkpoint``; True when training should stop."""
         score = float(self.validate(checkpoint))
         self.history.append([it, score])
-        if score > self.best:
+        if score > self.best + (self.tie or 0.0):
             self.best, self.stale = score, 0
             checkpoint.replace(self.out / "val_best.pt")
         else:
             self.stale += 1
+            if self.tie is not None and score >= self.best - self.tie:
+                checkpoint.replace(self.out / "val_best.pt")  # a tie: keep the more trained policy
+                self.best = max(self.best, score)
         write_json(self.out / "validation.json", {"history": self.history, "stale": self.stale, "best": self.best})
         log.info("validation at iteration %d: %.3f (best %.3f)", it + 1, score, self.best)
         return (self.perfect is not None and self.best >= self.perfect) or self.stale >= self.patience
