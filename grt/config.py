@@ -1,22 +1,61 @@
-"""Typed config schemas and OmegaConf resolvers, registered before Hydra composes.
+"""Typed config schemas, their validation, and OmegaConf resolvers, registered before Hydra composes.
 
-The ``budget`` group is validated by a dataclass schema, so a misspelled key (``budget.trails=3``)
-fails when the config is composed, with the key's name in the message. Groups with a ``_target_``
-are checked by the class signature at instantiation (an unknown key names itself in the TypeError).
+The ``budget`` group is validated by a dataclass schema, so a misspelled key (``budget.trails=3``) or a
+value of the wrong type (``budget.trials=abc``) fails when the config is composed, with the key's name in
+the message. Ranges (``budget.trials=0``) and keys added with ``+`` (``+budget.popsize=3``, which no code
+would read) are refused by :func:`validate`, which each Hydra app calls on its first line, before any
+simulation. Groups with a ``_target_`` are checked by the class signature at instantiation (an unknown
+key names itself in the TypeError).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+
+class ConfigError(ValueError):
+    """A config value out of range or a key no schema knows; the message names the key and the fix."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """What one config value accepts: ``check(value) -> bool``, described by ``accepts`` in messages."""
+
+    accepts: str
+    check: Callable[[Any], bool]
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_positive(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def at_least(low: int) -> Rule:
+    return Rule(f"an integer >= {low}", lambda v: _is_int(v) and v >= low)
+
+
+POSITIVE = Rule("a finite number > 0", _is_positive)
+POSITIVE_OR_NULL = Rule("null (off) or a finite number > 0", lambda v: v is None or _is_positive(v))
+
+
+def _field(default, rule: Rule, meaning: str):
+    return field(default=default, metadata={"rule": rule, "meaning": meaning})
 
 
 @dataclass
 class BudgetSchema:
-    """The numbers of a search (paper appendix, lines 1062-1099).
+    """The numbers of a search (paper appendix, lines 1062-1099); each field's ``Rule`` is in its metadata.
 
     Attributes:
         population: candidates per iteration (paper: 10).
@@ -29,20 +68,117 @@ class BudgetSchema:
         top_k: CrashShapes saved in the run folder.
     """
 
-    population: int = 10
-    iterations: int = 10
-    trials: int = 64
-    sigma: float = 0.001
-    seed: int = 42
-    workers: int = 2
-    tau: float | None = None
-    top_k: int = 3
+    population: int = _field(10, at_least(1), "candidates per iteration")
+    iterations: int = _field(10, at_least(1), "search iterations T")
+    trials: int = _field(64, at_least(1), "simulated episodes per candidate")
+    sigma: float = _field(0.001, POSITIVE, "std of the handle displacements, unit-cube units")
+    seed: int = _field(42, at_least(0), "seed of the optimizer and of the episode seeds")
+    workers: int = _field(2, at_least(1), "simulator worker processes")
+    tau: float | None = _field(None, POSITIVE_OR_NULL, "Smoothness-Score budget in meters")
+    top_k: int = _field(3, at_least(1), "CrashShapes saved in the run folder")
+
+
+BUDGET_KEYS = tuple(f.name for f in fields(BudgetSchema))
+
+
+def check_budget(budget: Mapping) -> None:
+    """Refuse a budget with a key :class:`BudgetSchema` lacks or a value out of its field's range.
+
+    Raises:
+        ConfigError: names the key, the value given and what the key accepts.
+    """
+    unknown = sorted(set(budget) - set(BUDGET_KEYS))
+    if unknown:
+        raise ConfigError(unknown_budget_key(unknown[0]))
+    for f in fields(BudgetSchema):
+        rule, key = f.metadata["rule"], f"budget.{f.name}"
+        if f.name not in budget or (isinstance(budget, DictConfig) and OmegaConf.is_missing(budget, f.name)):
+            raise ConfigError(f"{key} is not set; give {rule.accepts} ({f.metadata['meaning']}): {key}=...")
+        try:
+            value = budget[f.name]
+        except OmegaConfBaseException as exc:  # e.g. trials: ${task.trials} resolving to a wrong type
+            raise ConfigError(f"{key}: {str(exc).splitlines()[0]}; it must be {rule.accepts}") from None
+        if not rule.check(value):
+            raise ConfigError(f"{key}={value!r} is out of range: it must be {rule.accepts} "
+                              f"({f.metadata['meaning']})")
+
+
+def unknown_budget_key(name: str) -> str:
+    """The message for a key the budget does not have (``budget.trails=3``, ``+budget.popsize=3``)."""
+    return (f"budget.{name} is not a budget setting (with '+' it would be added and never read); "
+            f"the budget's keys are {', '.join(BUDGET_KEYS)}")
+
+
+def budget_hint(full_key: str) -> str | None:
+    """What ``budget.<key>`` accepts, for messages about it (``None`` for other keys)."""
+    name = full_key.split(".", 1)[1] if full_key.startswith("budget.") else ""
+    meta = {f.name: f.metadata for f in fields(BudgetSchema)}.get(name)
+    return f"{full_key} must be {meta['rule'].accepts} ({meta['meaning']})" if meta else None
+
+
+def validate(cfg: DictConfig) -> DictConfig:
+    """Check a composed root config before any work; the first line of every Hydra app.
+
+    Checks the budget (:func:`check_budget`) and that the optimizer accepts it (CMA-ES needs a
+    population of at least 2), so a bad value is refused before the nominal simulation.
+
+    Returns:
+        ``cfg``, unchanged.
+
+    Raises:
+        ConfigError: a user error (one line, exit code 2 in the CLIs, see :mod:`grt.errors`).
+    """
+    budget = cfg.get("budget")
+    if budget is not None:
+        check_budget(budget)
+    optimizer = cfg.get("optimizer")
+    if budget is not None and isinstance(optimizer, DictConfig) and "_target_" in optimizer:
+        _check_optimizer(optimizer)
+    return cfg
+
+
+def _check_optimizer(node: DictConfig) -> None:
+    """Build the configured optimizer once (cheap, no simulation): its own range checks run now."""
+    from hydra.utils import instantiate
+
+    name = str(node._target_).rsplit(".", 1)[-1]
+    try:
+        instantiate(node)(num_handles=1)  # the optimizer groups are partials: num_handles comes at run time
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{name} refuses its settings (optimizer.*, budget.population, budget.sigma): "
+                          f"{exc}") from None
 
 
 def object_name(spec: str) -> str:
     """A short name for an object spec: the built-in name, or a file's stem."""
     text = str(spec)
     return Path(text).stem if ("/" in text or "." in text) else text
+
+
+# A run's own config, written once when it starts (grt/run.py); what ``resume=DIR`` reads.
+RUN_CONFIG = "run_config.yaml"
+
+
+def is_run_folder(path: str | Path) -> bool:
+    """Whether ``resume=path`` can continue a run there: the folder holds the run's own config (or, for a
+    run from before ``run_config.yaml`` existed, a journal and Hydra's record of its start)."""
+    folder = Path(path)
+    return (folder / RUN_CONFIG).is_file() or (
+        (folder / "journal.jsonl").is_file() and (folder / ".hydra" / "config.yaml").is_file())
+
+
+def resume_or(resume: str | None, default: str) -> str:
+    """``hydra.run.dir``: the resumed run's own folder, else ``default`` (a new one).
+
+    Hydra creates this folder and writes ``.hydra/`` and ``run.log`` into it before the app runs, so a
+    folder that is not a run is refused here, before anything is written (``python -m grt.run`` refuses
+    it earlier still, with one line and exit code 2).
+    """
+    if not resume:
+        return default
+    if not is_run_folder(resume):
+        raise ValueError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG}), so nothing to resume")
+    return str(resume)
 
 
 def register() -> None:
@@ -55,8 +191,7 @@ def register() -> None:
         # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
         OmegaConf.register_new_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
     if not OmegaConf.has_resolver("resume_or"):
-        # hydra.run.dir: continue in the resumed run's own folder instead of creating a new one
-        OmegaConf.register_new_resolver("resume_or", lambda resume, default: resume or default)
+        OmegaConf.register_new_resolver("resume_or", resume_or)
 
 
 register()

@@ -122,8 +122,8 @@ class RedTeamLoop:
 
     def _mismatch(self, t: int, i: int, why: str) -> None:
         raise JournalError(f"{self.journal.path}: iteration {t} candidate {i} of the journal was not made by this "
-                           f"run's config: {why}. Resume with the run's own config (its .hydra/config.yaml) "
-                           "or start a new run.")
+                           f"run's config: {why}. `python -m grt.run resume=DIR` alone resumes with the run's own config "
+                           "(run_config.yaml); otherwise start a new run.")
 
     def _evaluate(self, t: int, i: int, theta: np.ndarray, mesh: trimesh.Trimesh) -> dict:
         start = time.perf_counter()

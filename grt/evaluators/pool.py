@@ -72,6 +72,9 @@ def build_session(task: dict, policy: dict):
 # ------------------------------------------------------------------------------------ worker side
 def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None = None) -> None:
     """Worker process entry: build the session, then run jobs until told to stop (``None``)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to report; it stops us
     try:
         session = build_session(task, policy)
     except BaseException:
