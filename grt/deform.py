@@ -7,7 +7,9 @@ or a built-in object name (``python -m grt.objects`` lists them).
 
 Unlike :class:`grt.geometry.deform.ShapeDeformer` (which keeps anchors at rest), the CLI honours
 the anchor targets given in the file; ``--no-align`` skips the rigid Procrustes re-alignment of the
-result on the anchors.
+result on the anchors. ``OUT`` is written whole or not at all, into an existing folder; a mistake (bad
+mesh or target file, unsupported ``--out`` format, missing or read-only folder) is one ``error:`` line
+and exit code 2, Ctrl-C exit code 130.
 """
 
 from __future__ import annotations
@@ -19,12 +21,19 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from grt.errors import check_output_file, exit_on_user_error, write_output
 from grt.geometry.deform import METHODS, JacobianFieldDeformer, check_indices
-from grt.geometry.mesh import MeshError, UnitCubeFrame, align_to_anchors, load_mesh
+from grt.geometry.mesh import UnitCubeFrame, align_to_anchors, load_mesh
+
+OUT_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".off")  # formats load_mesh reads back
 
 
 class TargetFileError(ValueError):
     """A handle/anchor file that cannot be parsed; the message names the file and line."""
+
+
+class DeformInputError(ValueError):
+    """Targets or settings the deformation cannot use (bad indices, ``--lam`` <= 0, an unanchored part)."""
 
 
 def read_targets(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -93,23 +102,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("mesh", help="mesh file (OBJ/STL/PLY/GLB/OFF) or built-in object name")
     ap.add_argument("--handles", required=True, help="file of 'index x y z' handle targets")
     ap.add_argument("--anchors", required=True, help="file of 'index x y z' anchor targets")
-    ap.add_argument("--out", required=True, help="output mesh file (.obj, .stl, .ply)")
+    ap.add_argument("--out", required=True,
+                    help=f"output mesh file ({', '.join(OUT_SUFFIXES)}) in an existing folder")
     ap.add_argument("--method", choices=METHODS, default="exact")
     ap.add_argument("--lam", type=float, default=1.0, help="anchor weight (APAP: 1.0)")
     ap.add_argument("--no-align", action="store_true", help="skip Procrustes alignment on the anchors")
     args = ap.parse_args(argv)
-    try:
+    with exit_on_user_error(TargetFileError, DeformInputError):
+        out = check_output_file(args.out, OUT_SUFFIXES)  # before any work
         mesh = load_mesh(args.mesh)
         h_idx, h_pos = read_targets(args.handles)
         a_idx, a_pos = read_targets(args.anchors)
-        verts, residual = deform_to_targets(mesh, h_idx, h_pos, a_idx, a_pos, args.method, args.lam,
-                                            not args.no_align)
-    except (MeshError, TargetFileError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    trimesh.Trimesh(verts, mesh.faces, process=False).export(out)
+        try:
+            verts, residual = deform_to_targets(mesh, h_idx, h_pos, a_idx, a_pos, args.method, args.lam,
+                                                not args.no_align)
+        except ValueError as exc:  # indices out of range or shared, --lam <= 0, a component without anchor
+            raise DeformInputError(f"cannot deform {args.mesh} with {args.handles} and {args.anchors}: {exc}") \
+                from None
+        data = trimesh.Trimesh(verts, mesh.faces, process=False).export(file_type=out.suffix.lower()[1:])
+        write_output(out, data)
     for note in mesh.metadata.get("grt_repairs", []):
         print(f"repaired input: {note}")
     print(f"method={args.method} handles={len(h_idx)} anchors={len(a_idx)} "

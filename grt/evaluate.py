@@ -20,7 +20,7 @@ import hydra
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-import grt.config  # noqa: F401 - registers the config schemas and resolvers
+import grt.config  # registers the config schemas and resolvers before composition
 from grt.geometry.mesh import load_mesh, mesh_hash
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
@@ -89,6 +89,7 @@ def main(cfg: DictConfig) -> float:
     from grt.errors import exit_on_user_error
 
     with exit_on_user_error():
+        grt.config.validate(cfg)
         summary = evaluate(cfg, HydraConfig.get().runtime.output_dir)
     print(figures(summary))
     print(json.dumps(summary))
@@ -96,4 +97,6 @@ def main(cfg: DictConfig) -> float:
 
 
 if __name__ == "__main__":
-    main()
+    from grt.errors import run_cli
+
+    run_cli(main)

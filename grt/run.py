@@ -41,8 +41,12 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from tqdm.auto import tqdm
 
-from grt.config import RUN_CONFIG, is_run_folder  # also registers schemas and resolvers before composition
-from grt.errors import exit_on_user_error, find_user_error
+from grt.config import (  # also registers schemas and resolvers before composition
+    RUN_CONFIG,
+    is_run_folder,
+    validate,
+)
+from grt.errors import exit_on_user_error, find_user_error, run_cli
 from grt.geometry.deform import ShapeDeformer
 from grt.geometry.mesh import load_mesh
 from grt.journal import Journal, JournalError
@@ -307,6 +311,7 @@ def main(cfg: DictConfig) -> float:
     if cfg.resume:
         cfg = own_config(cfg)
     try:
+        validate(cfg)  # budget ranges, +budget keys, optimizer settings: refused before any simulation
         summary = run(cfg)
     except KeyboardInterrupt:
         log.warning(interrupted(Path(cfg.resume or cfg.paths.output_dir)))
@@ -337,7 +342,7 @@ def cli(argv: list[str] | None = None) -> None:
         with exit_on_user_error():
             new = resume_overrides(overrides)
         sys.argv[1:] = [*(arg for arg in argv if arg not in overrides), *new]
-    main()
+    run_cli(main)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,12 @@
 """Choose handles and anchors on one object: ``python -m grt.select object=NAME|PATH selector=...``.
 
-Writes to ``out_dir``: ``handles.json`` (vertex indices, positions in meters, and the VLM's semantic
-label and expected transformations when there are some) and ``panel.png`` (the canonical view panel
-of the candidate keypoints, chosen handles outlined in red; for the VLM selector the same keypoints,
-numbers and views the model saw), then prints the choice.
+Writes into Hydra's run folder, as ``grt.run`` does (``hydra.run.dir=PATH``, or ``out_dir=PATH`` for
+short; ``outputs/select/<object>/<selector>/<time>`` by default): ``handles.json`` (vertex indices,
+positions in meters, and the VLM's semantic label and expected transformations when there are some)
+and ``panel.png`` (the canonical view panel of the candidate keypoints, chosen handles outlined in red;
+for the VLM selector the same keypoints, numbers and views the model saw), then prints the choice. A
+mistake (unknown object, bad mesh, missing API key, unwritable folder) is one ``error:`` line and exit
+code 2.
 """
 
 from __future__ import annotations
@@ -16,7 +19,8 @@ import numpy as np
 import trimesh
 from omegaconf import DictConfig
 
-import grt.config  # noqa: F401  (registers the object_name resolver used in conf/select.yaml)
+import grt.config  # registers the object_name resolver used in conf/select.yaml
+from grt.errors import OutputError, exit_on_user_error, run_cli, write_output
 from grt.geometry.mesh import UnitCubeFrame, load_mesh
 from grt.selectors.base import HandleSet
 from grt.selectors.panel import render_panel
@@ -41,19 +45,27 @@ def select(object_spec: str, task: str, selector, out_dir: str | Path) -> dict:
 
     Returns:
         The ``handles.json`` record.
+
+    Raises:
+        grt.objects.UnknownObjectError, grt.geometry.mesh.MeshError: a bad object.
+        grt.errors.OutputError: a folder that cannot be created or written.
     """
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create {out}: {exc.strerror}; choose a folder you can write to "
+                          "(out_dir=PATH)") from None
     mesh = load_mesh(object_spec)
     result = selector.select(mesh, task)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     record = {"object": str(object_spec), "task": task, "selector": type(selector).__name__,
               **result.to_dict(mesh)}
     record["units"] = "positions in meters (the object's frame); indices are mesh vertex indices"
     for key in ("semantic_object_label", "expected_transformations"):
         if key in result.notes:
             record[key] = result.notes[key]
-    (out / "handles.json").write_text(json.dumps(record, indent=2))
-    (out / "panel.png").write_bytes(panel_png(mesh, result))
+    write_output(out / "handles.json", json.dumps(record, indent=2), "out_dir=PATH")
+    write_output(out / "panel.png", panel_png(mesh, result), "out_dir=PATH")
     return record
 
 
@@ -73,11 +85,14 @@ def describe(record: dict, out_dir: str | Path) -> str:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="select")
 def main(cfg: DictConfig) -> None:
-    """Hydra entry point (conf/select.yaml)."""
-    selector = hydra.utils.instantiate(cfg.selector)
-    record = select(cfg.object, cfg.task, selector, cfg.out_dir)
-    print(describe(record, cfg.out_dir))
+    """Hydra entry point (conf/select.yaml): writes into Hydra's run folder, as ``grt.run``."""
+    with exit_on_user_error():
+        grt.config.validate(cfg)
+        out_dir = Path(cfg.paths.output_dir)
+        selector = hydra.utils.instantiate(cfg.selector)
+        record = select(cfg.object, cfg.task, selector, out_dir)
+    print(describe(record, out_dir))
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(main)

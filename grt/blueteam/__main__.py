@@ -207,4 +207,6 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from grt.errors import run_cli
+
+    run_cli(main)

@@ -4,31 +4,47 @@ Reads only ``summary.json`` files (and ``error.txt`` of failed jobs): Final Drop
 Iter@50%, AUC, per run, plus the mean over runs of each (selector, optimizer) method, the way the
 paper aggregates objects into Tables 1 and 2. S0 and the best score are in the task's own score, named
 per run (``success rate``, ``mean opening (m)``); the other columns are relative to S0, unit-free.
+A mistake (no such folder, no or a broken ``summary.json``, a ``--csv`` path that cannot be written) is
+one ``error:`` line and exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import io
 import json
 import math
-import sys
 from collections import defaultdict
 from pathlib import Path
 
+from grt.errors import check_output_file, exit_on_user_error, write_output
 from grt.scores import ScoreSpec
 
 COLUMNS = ("task", "object", "policy", "selector", "optimizer", "tau", "score_name", "score_unit", "s0",
            "best_score", "final_drop", "delta_complexity", "iter_at_50", "auc", "evaluations", "wall_s")
+REQUIRED = ("task", "object", "selector", "optimizer", "final_drop", "delta_complexity", "iter_at_50", "auc")
+
+
+class ReportError(ValueError):
+    """A folder or summary the report cannot read; the message names it and the fix."""
 
 
 def collect(root: Path) -> tuple[list[dict], list[Path]]:
-    """Summaries under ``root`` (itself a run folder, or any tree of them) and failed job folders."""
+    """Summaries under ``root`` (itself a run folder, or any tree of them) and failed job folders.
+
+    Raises:
+        ReportError: ``root`` does not exist, or a ``summary.json`` is not a GRT run summary.
+    """
     if not root.exists():
-        raise SystemExit(f"error: {root} does not exist; give a run folder or a multirun folder under outputs/")
+        raise ReportError(f"{root} does not exist; give a run folder or a multirun folder under outputs/")
+    if root.is_file():
+        if root.name != "summary.json":
+            raise ReportError(f"{root} is a file; give a run folder or a multirun folder under outputs/")
+        root = root.parent
     rows = []
     for path in sorted(root.rglob("summary.json")):
-        data = json.loads(path.read_text())
+        data = read_summary(path)
         data["run"] = str(path.parent)
         spec = ScoreSpec.from_summary(data)  # summaries written before score_name: a success rate
         data.setdefault("score_name", spec.name)
@@ -36,6 +52,20 @@ def collect(root: Path) -> tuple[list[dict], list[Path]]:
         rows.append(data)
     failed = sorted(p.parent for p in root.rglob("error.txt"))
     return rows, failed
+
+
+def read_summary(path: Path) -> dict:
+    """One run's ``summary.json``, refused with its path when it is not a finished GRT run's summary."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ReportError(f"{path}: cannot read it ({exc}); delete or restore the file, or report on "
+                          "another folder") from None
+    missing = [k for k in REQUIRED if not isinstance(data, dict) or k not in data]
+    if missing:
+        raise ReportError(f"{path}: not a GRT run summary (no {', '.join(missing)}); report on folders "
+                          "written by python -m grt.run")
+    return data
 
 
 def _fmt(v, kind: str = "") -> str:
@@ -95,18 +125,22 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m grt.report", description=__doc__.splitlines()[0])
     ap.add_argument("path", type=Path, help="a run folder or a multirun folder")
-    ap.add_argument("--csv", type=Path, help="also write the per-run rows as CSV")
+    ap.add_argument("--csv", type=Path, help="also write the per-run rows as CSV (into an existing folder)")
     args = ap.parse_args(argv)
-    rows, failed = collect(args.path)
-    if not rows and not failed:
-        sys.exit(f"error: no summary.json under {args.path}: is it a finished GRT run folder?")
-    print(markdown(rows, aggregate(rows), failed))
-    if args.csv:
-        with open(args.csv, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+    with exit_on_user_error(ReportError):
+        if args.csv:
+            check_output_file(args.csv, (".csv",), "--csv")  # before reading anything
+        rows, failed = collect(args.path)
+        if not rows and not failed:
+            raise ReportError(f"no summary.json under {args.path}: is it a finished GRT run folder?")
+        print(markdown(rows, aggregate(rows), failed))
+        if args.csv:
+            text = io.StringIO(newline="")
+            w = csv.DictWriter(text, fieldnames=COLUMNS, extrasaction="ignore")
             w.writeheader()
             w.writerows(rows)
-        print(f"\nwrote {args.csv}")
+            write_output(args.csv, text.getvalue(), "--csv PATH")
+            print(f"\nwrote {args.csv}")
 
 
 if __name__ == "__main__":
