@@ -84,3 +84,17 @@ def test_bad_checkpoints_are_refused_with_the_fix(tmp_path, content):
     torch.save({"actor_state_dict": {}}, path)
     with pytest.raises(CheckpointError, match="not a GRT rsl-rl checkpoint"):
         RslRlPolicy(str(path))
+
+
+def test_a_frozen_normalizer_keeps_its_statistics_through_ppo(reach_task, box_shape, train_cfg, tmp_path):
+    import torch
+
+    env = TaskVecEnv(reach_task, [box_shape], num_envs=4, workers=0, seed=0)
+    train(env, {**train_cfg, "freeze_normalization": True}, tmp_path, "reach", reach_task, iterations=3,
+          save_interval=1)
+    state = torch.load(tmp_path / "last.pt", map_location="cpu", weights_only=False)["actor_state_dict"]
+    assert float(state["obs_normalizer.count"]) == 0.0  # no rollout updated it
+    env2 = TaskVecEnv(reach_task, [box_shape], num_envs=4, workers=0, seed=0)
+    train(env2, train_cfg, tmp_path / "free", "reach", reach_task, iterations=3, save_interval=1)
+    free = torch.load(tmp_path / "free" / "last.pt", map_location="cpu", weights_only=False)["actor_state_dict"]
+    assert float(free["obs_normalizer.count"]) > 0.0

@@ -120,3 +120,19 @@ def test_user_handle_mesh_needs_its_grasp_point(tmp_path):
     with pytest.raises(TaskInputError, match="grasp_point"):
         DrawerSession.check_object(loaded, handle_object=str(path))
     DrawerSession.check_object(loaded, handle_object=str(path), grasp_point=[0.0, 0.0, 0.032])
+
+
+@pytest.mark.sim
+def test_the_shipped_ppo_policy_opens_the_nominal_drawer():
+    from pathlib import Path
+
+    import grt
+    from grt.policies.rsl_rl import RslRlPolicy
+    from grt.tasks.drawer import DrawerSession
+
+    policy = RslRlPolicy(str(Path(grt.__file__).parent / "policies/checkpoints/drawer_state.pt"), task="drawer")
+    with DrawerSession(policy=policy, handle_object="drawer_handle") as s:
+        mesh = get_object("drawer_handle")
+        s.load_object(mesh, _parts(mesh))
+        out = [s.run_trial(seed) for seed in (11, 12, 13)]
+    assert all(o.mode == "success" and o.score >= 0.38 for o in out), out
