@@ -123,6 +123,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     """Compute the paper's metrics from the journal and write every artifact of the run."""
     from grt.report.plots import plot_curve, plot_shapes
 
+    _remove_except(run_dir, set(), re.compile(_TEMP))  # temporary files of a write a kill interrupted
     records = result.records
     score = ScoreSpec.from_task(cfg.task)
     nominal = next(r for r in records if r["iteration"] == 0)

@@ -50,7 +50,7 @@ from grt.errors import exit_on_user_error, find_user_error, run_cli
 from grt.geometry.deform import ShapeDeformer
 from grt.geometry.mesh import load_mesh
 from grt.journal import Journal, JournalError
-from grt.outputs import print_summary, write_outputs
+from grt.outputs import print_summary, write_outputs, write_text_atomic
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.scores import ScoreSpec
 from grt.selectors.base import HandleSet
@@ -129,7 +129,7 @@ def _select_handles(cfg: DictConfig, mesh, run_dir: Path) -> HandleSet:
         return HandleSet.from_json(path.read_text())
     selector = instantiate(cfg.selector)
     handle_set = selector.select(mesh, cfg.task.description)
-    path.write_text(handle_set.to_json())
+    write_text_atomic(path, handle_set.to_json())  # a kill mid-write must not leave a half file to resume from
     return handle_set
 
 
