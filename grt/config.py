@@ -171,13 +171,16 @@ def resume_or(resume: str | None, default: str) -> str:
     """``hydra.run.dir``: the resumed run's own folder, else ``default`` (a new one).
 
     Hydra creates this folder and writes ``.hydra/`` and ``run.log`` into it before the app runs, so a
-    folder that is not a run is refused here, before anything is written (``python -m grt.run`` refuses
+    folder that no GRT app made is refused here, before anything is written (``python -m grt.run`` refuses
     it earlier still, with one line and exit code 2).
     """
     if not resume:
         return default
-    if not is_run_folder(resume):
-        raise ValueError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG}), so nothing to resume")
+    # Shared by grt.run, grt.blueteam and scripts/train_policy.py: a folder one of them made (a red-team
+    # run, or Hydra's record of a fine-tune / training run); grt.run checks its own kind first.
+    if not (is_run_folder(resume) or (Path(resume) / ".hydra" / "config.yaml").is_file()):
+        raise ValueError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG} or .hydra/config.yaml), "
+                         "so nothing to resume")
     return str(resume)
 
 

@@ -14,7 +14,7 @@ import secrets
 import shutil
 import subprocess
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,39 @@ def git_state() -> dict:
     except (OSError, subprocess.SubprocessError):
         return {}
     return {"commit": commit, "dirty": dirty} if commit else {}
+
+
+def machine_state() -> dict:
+    """What a run's numbers may depend on beyond its config and code: CPU, SIMD flags, thread counts and
+    the versions of the numerical and simulation libraries (two machines "of the same kind" gave
+    different red-team curves; this makes the difference visible in summary.json)."""
+    import hashlib
+    import importlib.metadata as md
+    import os
+    import platform
+
+    info: dict = {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()}
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+        model = next((ln.split(":", 1)[1].strip() for ln in text.splitlines() if ln.startswith("model name")), "")
+        flags = next((ln.split(":", 1)[1].split() for ln in text.splitlines() if ln.startswith("flags")), [])
+        info.update(cpu=model, simd=sorted(f for f in flags if f.startswith(("avx", "fma", "amx", "sse4"))),
+                    cpu_flags_sha=hashlib.sha256(" ".join(sorted(flags)).encode()).hexdigest()[:12])
+    except OSError:
+        info["cpu"] = platform.processor()
+    info["threads"] = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    try:
+        import torch
+
+        info["threads"]["torch"] = torch.get_num_threads()
+    except ImportError:
+        pass
+    versions = {}
+    for dist in ("numpy", "scipy", "torch", "sapien", "mani_skill", "coacd", "trimesh", "manifold3d"):
+        with suppress(md.PackageNotFoundError):
+            versions[dist] = md.version(dist)
+    info["versions"] = versions
+    return info
 
 
 @contextmanager
@@ -144,7 +177,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "population": cfg.budget.population, "iterations": cfg.budget.iterations,
         "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": cfg.budget.tau,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
-        "wall_s": round(wall_s, 1), "git": git_state(),
+        "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
     }
     if not result.s0 > 0:
         summary["note"] = (f"S0 = {score.fmt(result.s0, unit=True)}: the policy already fails on the nominal "
