@@ -38,6 +38,7 @@ import torch
 import trimesh
 from mani_skill.agents.controllers import PDJointPosControllerConfig
 from mani_skill.agents.controllers.pd_joint_pos import PDJointPosController
+from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots import Panda
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
@@ -79,6 +80,7 @@ class _ClippedConfig(PDJointPosControllerConfig):
     controller_cls = _ClippedController
 
 
+@register_agent(override=True)  # by uid, so the env's SUPPORTED_ROBOTS check knows it
 class PandaDrawer(Panda):
     """The Panda with the paper's drawer action: 9 joint deltas (7 arm joints, 2 independent fingers)."""
 
@@ -190,7 +192,7 @@ class DrawerEnv(BaseEnv):
         self._sim_freq, self._control_freq = int(sim_freq), int(control_freq)
         self.rest_qpos = None
         self.set_object(*default_handle())
-        super().__init__(*args, robot_uids=PandaDrawer, **kwargs)
+        super().__init__(*args, robot_uids="panda_drawer", **kwargs)
 
     # ------------------------------------------------------------------ configuration
     @property

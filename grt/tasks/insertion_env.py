@@ -33,6 +33,7 @@ import sapien
 import torch
 import trimesh
 from mani_skill.agents.controllers import PDEEPoseControllerConfig
+from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots import Panda
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
@@ -54,6 +55,7 @@ TCP_IN_PLUG_ROT = np.diag([1.0, -1.0, -1.0])
 STATE_DIM = 24
 
 
+@register_agent(override=True)  # by uid, so the env's SUPPORTED_ROBOTS check knows it
 class PandaInsert(Panda):
     """The Panda with the paper's insertion action: arm-only 6-D delta pose scaled by 0.01; the
     fingers are driven closed by :class:`InsertEnv` (not part of the action)."""
@@ -139,7 +141,7 @@ class InsertEnv(BaseEnv):
         plug, parts = default_plug(self.head_length)
         self.set_socket(build_socket(plug, self.head_length))
         self.set_object(plug, parts)
-        super().__init__(*args, robot_uids=PandaInsert, **kwargs)
+        super().__init__(*args, robot_uids="panda_insert", **kwargs)
 
     # ------------------------------------------------------------------ configuration
     @property
