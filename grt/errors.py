@@ -35,12 +35,12 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from grt.journal import JournalError
     from grt.objects import UnknownObjectError
     from grt.policies.rsl_rl import CheckpointError
-    from grt.scores import ScoreConfigError
+    from grt.scores import NominalFloorError, ScoreConfigError
     from grt.selectors.client import VLMError
     from grt.tasks.base import TaskInputError
 
     return (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError, CheckpointError, TaskInputError,
-            BlueTeamError, ScoreConfigError, ConfigError, OutputError)
+            BlueTeamError, ScoreConfigError, NominalFloorError, ConfigError, OutputError)
 
 
 def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:

@@ -21,7 +21,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 import grt.config  # registers the config schemas and resolvers before composition
-from grt.geometry.mesh import load_mesh, mesh_hash
+from grt.geometry.mesh import check_object_size, load_mesh, mesh_hash
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
 
@@ -33,13 +33,15 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
 
     Raises:
         grt.objects.UnknownObjectError: neither a built-in object nor an existing file.
-        MeshError: an unreadable or unusable mesh file.
+        MeshError: an unreadable or unusable mesh file, or one not in meters (``object_scale``).
     """
     from grt.tasks import preflight
 
     score = ScoreSpec.from_task(cfg.task)
-    mesh = load_mesh(cfg.object)
-    preflight(_plain(cfg.task), instantiate(cfg.policy), mesh)
+    scale = cfg.get("object_scale", 1.0)
+    mesh = load_mesh(cfg.object, scale=scale)
+    check_object_size(mesh)  # a mesh in millimetres: refused before any simulation
+    preflight(_plain(cfg.task), instantiate(cfg.policy), mesh, scale)
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None

@@ -1,4 +1,4 @@
-"""What a run leaves in its folder: summary.json, crashshapes/, curve.png, shapes.png, git state.
+"""What a run leaves in its folder: nominal.obj, summary.json, crashshapes/, curve.png, shapes.png, git state.
 
 Every file is written under a temporary name and renamed into place, so a run killed while writing
 leaves the previous version or the new one, never half a file. A resumed run rewrites all of them and
@@ -94,6 +94,18 @@ def write_text_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a temporary file and a rename."""
     with atomic_path(path) as tmp:
         tmp.write_text(text)
+
+
+def save_nominal(run_dir: Path, mesh: trimesh.Trimesh) -> Path:
+    """Write ``nominal.obj``: the mesh the run deforms, in meters, with the vertex order and faces of every
+    CrashShape (the indices of ``handles.json`` point into it). Plain ``v``/``f`` lines (no normals or
+    texture coordinates, which could make a reader split vertices), 15 decimals: read back with
+    ``trimesh.load(path, process=False)`` it is the run's mesh to ~1e-15 m (same ``mesh_hash``)."""
+    path = Path(run_dir) / "nominal.obj"
+    with atomic_path(path) as tmp:
+        mesh.export(tmp, file_type="obj", include_normals=False, include_texture=False, include_color=False,
+                    digits=15)
+    return path
 
 
 # What save_crashshapes writes per shape: rank<r>_it<t>_c<i>.stl / .obj and the _parts folder, and

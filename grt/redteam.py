@@ -59,6 +59,8 @@ class RedTeamLoop:
         complexity: ``mesh -> angular-deficit entropy`` (stored per candidate for ΔComplexity).
         on_candidate: called with each new record (progress bars, loggers).
         on_iteration: called with ``(t, scores)`` after each iteration.
+        on_nominal: called with ``S0`` once it is journaled (evaluated or replayed); raising stops the run
+            there (e.g. :func:`grt.scores.check_nominal_floor`).
         ci: interval method of each candidate's journaled ``ci95`` (the task's ``ci`` setting, see
             :func:`grt.metrics.score_interval`).
     """
@@ -67,11 +69,12 @@ class RedTeamLoop:
                  seeds: list[int], iterations: int, tau: float | None = None,
                  complexity: Callable[[trimesh.Trimesh], float] | None = None,
                  on_candidate: Callable[[dict], None] | None = None,
-                 on_iteration: Callable[[int, list[float]], None] | None = None, ci: str = "auto"):
+                 on_iteration: Callable[[int, list[float]], None] | None = None, ci: str = "auto",
+                 on_nominal: Callable[[float], None] | None = None):
         self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
         self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
         self.tau, self.complexity, self.ci = tau, complexity, ci
-        self.on_candidate, self.on_iteration = on_candidate, on_iteration
+        self.on_candidate, self.on_iteration, self.on_nominal = on_candidate, on_iteration, on_nominal
         self.evaluations = 0
 
     def run(self) -> RedTeamResult:
@@ -84,6 +87,8 @@ class RedTeamLoop:
         if not np.isfinite(s0):
             raise RuntimeError("every trial on the nominal object ended in sim_error: the task cannot be "
                                "scored on this object (see the journal's first line for the reasons)")
+        if self.on_nominal:
+            self.on_nominal(s0)
         self._s0 = s0
         history: list[list[float]] = []
         for t in range(1, self.iterations + 1):

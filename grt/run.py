@@ -48,22 +48,25 @@ from grt.config import (  # also registers schemas and resolvers before composit
 )
 from grt.errors import exit_on_user_error, find_user_error, run_cli
 from grt.geometry.deform import ShapeDeformer
-from grt.geometry.mesh import load_mesh
+from grt.geometry.mesh import check_object_size, load_mesh
 from grt.journal import Journal, JournalError
-from grt.outputs import print_summary, write_outputs, write_text_atomic
+from grt.outputs import print_summary, save_nominal, write_outputs, write_text_atomic
 from grt.redteam import RedTeamLoop, episode_seeds
-from grt.scores import ScoreSpec
+from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
 from grt.selectors.base import HandleSet
 from grt.tasks import preflight
 
 log = logging.getLogger("grt.run")
 
 # Keys a resume may set (with what is under them): none changes the search (results are identical with any
-# number of workers; loggers, the collision cache and Hydra's own files only record), so a resumed run stays
-# the run its journal was written by.
-RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra")
+# number of workers; loggers, the collision cache and Hydra's own files only record; the nominal floor only
+# decides whether the run goes on after S0), so a resumed run stays the run its journal was written by.
+RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra", "task.nominal_floor")
 # The parts of a resumed run's config taken from the command; all the rest is the run's saved config.
-FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths")
+FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths",
+                "task.nominal_floor")
+# FROM_COMMAND keys set even where the run's saved config lacks them (a run from before the key existed).
+ADDED_KEYS = ("task.nominal_floor",)
 RUN_FOLDERS = "outputs/<task>/<object>/<selector>-<optimizer>/<time>"
 INTERRUPTED = 130  # the shell's code for a process ended by SIGINT
 _ABSENT = object()
@@ -79,12 +82,16 @@ def run(cfg: DictConfig) -> dict:
     if cfg.resume:
         _refuse_unless_run(run_dir)
     score = ScoreSpec.from_task(cfg.task)  # a bad task.ci fails here, before any simulation
+    floor = nominal_floor(cfg.task)
     run_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    mesh = load_mesh(cfg.object)
-    preflight(_plain(cfg.task), instantiate(cfg.policy), mesh)  # wrong plug/checkpoint: refused before any file
+    scale = cfg.get("object_scale", 1.0)  # absent in runs from before the key: meters
+    mesh = load_mesh(cfg.object, scale=scale)
+    check_object_size(mesh)  # a mesh in millimetres: refused before any file
+    preflight(_plain(cfg.task), instantiate(cfg.policy), mesh, scale)  # wrong plug/checkpoint: likewise
     save_run_config(cfg, run_dir)
     handle_set = _select_handles(cfg, mesh, run_dir)
+    save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
     deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, lam=cfg.deformer.lam,
                              method=cfg.deformer.method)
     optimizer = instantiate(cfg.optimizer)(num_handles=len(handle_set.handles))
@@ -107,7 +114,7 @@ def run(cfg: DictConfig) -> dict:
             on_candidate=lambda rec: _progress(bar, rec, score),
             on_iteration=lambda t, scores: logger.log_iteration(t, {"best_score": optimizer.best_score,
                                                                     "mean_score": float(np.mean(scores))}),
-            ci=score.ci)
+            ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))))
         result = loop.run()
         bar.close()
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
@@ -267,7 +274,7 @@ def own_config(cfg: DictConfig) -> DictConfig:
     own = OmegaConf.create(OmegaConf.to_container(OmegaConf.load(path).config))
     for key in FROM_COMMAND:
         value = OmegaConf.select(cfg, key, default=_ABSENT)
-        if value is not _ABSENT and OmegaConf.select(own, key, default=_ABSENT) is not _ABSENT:
+        if value is not _ABSENT and (key in ADDED_KEYS or OmegaConf.select(own, key, default=_ABSENT) is not _ABSENT):
             OmegaConf.update(own, key, _plain(value) if isinstance(value, DictConfig) else value, merge=False)
     own.resume = cfg.resume
     return own

@@ -12,6 +12,9 @@ Task config keys (all optional, so run folders written before they existed still
 - ``score_unit``: its unit (``m``, ``rad``...); ``""`` or absent for a binary task.
 - ``ci``: the 95% interval of a candidate's score, one of :data:`grt.metrics.CI_METHODS`
   (default ``auto``: Wilson when every trial score is 0 or 1, else the normal approximation).
+- ``nominal_floor``: the least nominal score ``S0`` worth red-teaming, in the score's unit; a run stops
+  after its nominal evaluation below it (:func:`check_nominal_floor`). ``null`` turns it off; absent:
+  :data:`BINARY_FLOOR` for a binary task, off for a continuous one (its unit is the task's own).
 """
 
 from __future__ import annotations
@@ -22,9 +25,16 @@ from dataclasses import dataclass
 
 from grt.metrics import CI_METHODS
 
+# The paper keeps the objects the policy grasps in at least 25% of the nominal trials.
+BINARY_FLOOR = 0.25
+
 
 class ScoreConfigError(ValueError):
     """A task's score settings cannot be used (unknown ``ci``, Wilson on a continuous score)."""
+
+
+class NominalFloorError(ValueError):
+    """The nominal score ``S0`` is below the task's ``nominal_floor``: nothing worth red-teaming."""
 
 
 @dataclass(frozen=True)
@@ -87,3 +97,42 @@ class ScoreSpec:
     def fields(self) -> dict:
         """JSON fields naming the score (``summary.json``, ``evaluate``'s last line)."""
         return {"score_name": self.name, "score_unit": self.unit, "ci": self.ci}
+
+
+def nominal_floor(task: Mapping | None) -> float | None:
+    """The task's ``nominal_floor`` (``None``: off); absent, :data:`BINARY_FLOOR` for a binary task, else off.
+
+    Raises:
+        ScoreConfigError: a value that is not a finite number or null.
+    """
+    task = task if task is not None else {}
+    if "nominal_floor" not in task:
+        return BINARY_FLOOR if ScoreSpec.from_task(task).binary else None
+    value = task["nominal_floor"]
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ScoreConfigError(f"task.nominal_floor={value!r}: give a number in the task's score unit, or null "
+                               "to turn the floor off")
+    return float(value)
+
+
+def check_nominal_floor(s0: float, floor: float | None, spec: ScoreSpec, run_dir: str | None = None) -> None:
+    """Stop a run whose nominal score is below ``floor`` (``None``: never).
+
+    Args:
+        s0: the nominal score; floor: the task's :func:`nominal_floor`; spec: the task's score.
+        run_dir: the run's folder, named in the message (the command that continues it).
+
+    Raises:
+        NominalFloorError: one line naming ``S0``, the floor and what to do.
+    """
+    if floor is None or not s0 < floor:
+        return
+    lower = f"{floor / 2:.2g}"
+    where = f"python -m grt.run resume={run_dir} task.nominal_floor={lower}" if run_dir else \
+        f"task.nominal_floor={lower}"
+    raise NominalFloorError(
+        f"S0 = {spec.fmt(s0, unit=True)} ({spec.label} on the nominal object) is below task.nominal_floor = "
+        f"{spec.fmt(floor, unit=True)}: the policy already fails on this object, so there is little to red-team. "
+        f"Choose another object or policy, or lower the floor ({where}; null turns it off)")

@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 
 import grt.config  # registers the object_name resolver used in conf/select.yaml
 from grt.errors import OutputError, exit_on_user_error, run_cli, write_output
-from grt.geometry.mesh import UnitCubeFrame, load_mesh
+from grt.geometry.mesh import UnitCubeFrame, check_object_size, load_mesh
 from grt.selectors.base import HandleSet
 from grt.selectors.panel import render_panel
 
@@ -34,7 +34,7 @@ def panel_png(mesh: trimesh.Trimesh, result: HandleSet) -> bytes:
     return render_panel(unit, mesh.faces, unit[points], highlight=np.isin(points, result.handles))
 
 
-def select(object_spec: str, task: str, selector, out_dir: str | Path) -> dict:
+def select(object_spec: str, task: str, selector, out_dir: str | Path, object_scale: float = 1.0) -> dict:
     """Run a selector on an object and write ``handles.json`` and ``panel.png``.
 
     Args:
@@ -42,12 +42,13 @@ def select(object_spec: str, task: str, selector, out_dir: str | Path) -> dict:
         task: the task description.
         selector: a :class:`grt.selectors.base.HandleSelector`.
         out_dir: output folder (created).
+        object_scale: meters per mesh unit (0.001 for a mesh in millimetres).
 
     Returns:
         The ``handles.json`` record.
 
     Raises:
-        grt.objects.UnknownObjectError, grt.geometry.mesh.MeshError: a bad object.
+        grt.objects.UnknownObjectError, grt.geometry.mesh.MeshError: a bad object (or one not in meters).
         grt.errors.OutputError: a folder that cannot be created or written.
     """
     out = Path(out_dir)
@@ -56,7 +57,8 @@ def select(object_spec: str, task: str, selector, out_dir: str | Path) -> dict:
     except OSError as exc:
         raise OutputError(f"cannot create {out}: {exc.strerror}; choose a folder you can write to "
                           "(out_dir=PATH)") from None
-    mesh = load_mesh(object_spec)
+    mesh = load_mesh(object_spec, scale=object_scale)
+    check_object_size(mesh)
     result = selector.select(mesh, task)
     record = {"object": str(object_spec), "task": task, "selector": type(selector).__name__,
               **result.to_dict(mesh)}
@@ -90,7 +92,7 @@ def main(cfg: DictConfig) -> None:
         grt.config.validate(cfg)
         out_dir = Path(cfg.paths.output_dir)
         selector = hydra.utils.instantiate(cfg.selector)
-        record = select(cfg.object, cfg.task, selector, out_dir)
+        record = select(cfg.object, cfg.task, selector, out_dir, cfg.get("object_scale", 1.0))
     print(describe(record, out_dir))
 
 

@@ -54,7 +54,7 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     task, policy_cfg = _plain(run_cfg.task), _plain(run_cfg.policy)
     checkpoint = trainable_checkpoint(policy_cfg)
     ckpt = load_checkpoint(checkpoint)
-    nominal = load_mesh(run_cfg.object)
+    nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0))
     handles = HandleSet.from_json((run_dir / "handles.json").read_text())
     deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, lam=run_cfg.deformer.lam,
                              method=run_cfg.deformer.method)

@@ -25,7 +25,8 @@ class MeshError(ValueError):
 
 
 # --------------------------------------------------------------------------------------- loading
-def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest") -> trimesh.Trimesh:
+def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest",
+              scale: float = 1.0) -> trimesh.Trimesh:
     """Resolve a built-in object name or a mesh file into a validated mesh in meters.
 
     Args:
@@ -33,6 +34,8 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest"
             GLB/GLTF or OFF file (meters).
         repair: fix what can be fixed safely (see :func:`prepare_mesh`); ``False`` rejects instead.
         components: policy for several connected components, see :func:`prepare_mesh`.
+        scale: meters per file unit, applied after validation (the apps' ``object_scale``; 0.001 for a
+            mesh in millimetres). Vertex order and faces are kept.
 
     Returns:
         A watertight, manifold, consistently outward-oriented ``trimesh.Trimesh``;
@@ -58,9 +61,46 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest"
                         f"objects: {', '.join(list_objects())}.")
     else:
         raise UnknownObjectError(text)
+    if not (isinstance(scale, (int, float)) and not isinstance(scale, bool) and np.isfinite(scale) and scale > 0):
+        raise MeshError(f"object_scale={scale!r}: it must be a finite number > 0 (meters per mesh unit, "
+                        "e.g. 0.001 for a mesh in millimetres)")
     mesh = prepare_mesh(mesh, repair=repair, components=components)
+    if scale != 1.0:  # 1.0 keeps the vertices bit-identical (mesh hashes of runs from before object_scale)
+        mesh.vertices = np.asarray(mesh.vertices) * float(scale)
     mesh.metadata["grt_source"] = source
     return mesh
+
+
+# An object a tabletop robot handles: at most 1 m and at least 5 mm along its largest side (meters).
+OBJECT_SIZE_M = (0.005, 1.0)
+_UNITS = ((0.001, "millimetres"), (0.01, "centimetres"))
+
+
+def check_object_size(mesh: trimesh.Trimesh, key: str = "object_scale") -> None:
+    """Refuse, before any simulation, an object whose size says its mesh is not in meters.
+
+    Args:
+        mesh: the loaded object (meters, after ``key`` was applied).
+        key: the config key that scales the mesh, named in the message.
+
+    Raises:
+        MeshError: the largest bounding-box side is above 1 m or below 5 mm; names the likely unit and
+            the value of ``key`` that fixes it.
+    """
+    extents = np.asarray(mesh.extents, np.float64)
+    size = float(extents.max())
+    low, high = OBJECT_SIZE_M
+    if low <= size <= high:
+        return
+    box = " x ".join(f"{e:.3g}" for e in extents)
+    if size > high:  # the unit whose meters land nearest a 10 cm object (in log scale)
+        factor, unit = min(_UNITS, key=lambda u: abs(np.log10(size * u[0] / 0.1)))
+        raise MeshError(f"the object is {size:.3g} m across (bounding box {box} m), more than {high:g} m: a mesh in "
+                        f"{unit}? set {key}={factor:g} (meters per mesh unit)")
+    factor = 10.0 ** round(np.log10(0.1 / size)) if size > 0 else 1000.0
+    raise MeshError(f"the object is {size * 1000:.3g} mm across (bounding box {box} m), less than {low * 1000:g} mm: "
+                    f"a mesh in other units than meters (or scaled twice)? set {key}={factor:g} "
+                    f"(meters per mesh unit; it makes the object {size * factor:.3g} m across)")
 
 
 def _read_file(path: Path) -> trimesh.Trimesh:

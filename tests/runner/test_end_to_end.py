@@ -17,9 +17,10 @@ from tests.runner.conftest import compose_run
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
-# Small cameras keep CPU rendering cheap; the loop is what is under test here.
+# Small cameras keep CPU rendering cheap; the loop is what is under test here (with 2 trials S0 may be 0:
+# no nominal floor, which test_nominal_floor.py covers).
 FAST = ["budget=smoke", "task.session.num_cameras=2", "task.session.camera_width=160",
-        "task.session.camera_height=120", "selector.k=4"]
+        "task.session.camera_height=120", "selector.k=4", "task.nominal_floor=null"]
 
 
 def journal_keys(run_dir: Path) -> list[tuple[int, int]]:
