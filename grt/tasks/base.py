@@ -138,6 +138,8 @@ class EpisodeSession(TaskSession):
 
     #: the task's name (``conf/task/<name>.yaml``), checked against a learned policy's training task.
     task_name: str = ""
+    #: the gymnasium env a subclass builds (``gym.make``), closed and rendered by the methods below.
+    env = None
 
     def __init__(self, policy=None, max_steps: int = 256, rebuild_each_trial: bool = True):
         self.policy, self.max_steps, self.rebuild_each_trial = policy, int(max_steps), bool(rebuild_each_trial)
@@ -148,6 +150,17 @@ class EpisodeSession(TaskSession):
         check = getattr(self.policy, "check", None)
         if check is not None:
             check(self.task_name, self.obs_spec, self.num_actions)
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+
+    def render(self, path: str) -> None:
+        """Write a PNG of the scene as it is now (the env's human render camera)."""
+        from PIL import Image
+
+        image = self.env.unwrapped.render_rgb_array()
+        Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
 
     # --- what a subclass provides --------------------------------------------------------------------
     @abstractmethod

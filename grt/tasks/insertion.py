@@ -125,16 +125,6 @@ class InsertionSession(EpisodeSession):
         self.unwrapped.set_object(mesh, parts)
         self._object_changed = True
 
-    def close(self) -> None:
-        self.env.close()
-
-    def render(self, path: str) -> None:
-        """Write a PNG of the scene as it is now, 512 x 512."""
-        from PIL import Image
-
-        image = self.unwrapped.render_rgb_array()
-        Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
-
     # --- EpisodeSession hooks ------------------------------------------------------------------------
     def _reset_env(self, seed: int, rebuild: bool) -> None:
         self.env.reset(seed=seed, options=dict(reconfigure=rebuild or self._object_changed))
