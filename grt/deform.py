@@ -10,6 +10,11 @@ the anchor targets given in the file; ``--no-align`` skips the rigid Procrustes 
 result on the anchors. ``OUT`` is written whole or not at all, into an existing folder; a mistake (bad
 mesh or target file, unsupported ``--out`` format, missing or read-only folder) is one ``error:`` line
 and exit code 2, Ctrl-C exit code 130.
+
+Indices count the vertices of the file as written (an OBJ's ``v`` lines). When loading or repair
+changes the vertices (an unreferenced vertex dropped, duplicates merged, ``--remesh``), each index is
+carried to the prepared mesh's vertex nearest to its file position and the tool says so; a vertex that
+has none within half an edge, or two indices that land on one vertex, is refused.
 """
 
 from __future__ import annotations
@@ -23,7 +28,10 @@ import trimesh
 
 from grt.errors import check_output_file, exit_on_user_error, write_output
 from grt.geometry.deform import METHODS, JacobianFieldDeformer, check_indices
+from grt.geometry.indices import IndexMapError, carry_indices, file_vertices
 from grt.geometry.mesh import UnitCubeFrame, align_to_anchors, load_mesh
+from grt.geometry.prepare import REMESH_MODES, MeshSettings
+from grt.geometry.prepare import describe as describe_preparation
 
 OUT_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".off")  # formats load_mesh reads back
 
@@ -107,12 +115,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--method", choices=METHODS, default="exact")
     ap.add_argument("--lam", type=float, default=1.0, help="anchor weight (APAP: 1.0)")
     ap.add_argument("--no-align", action="store_true", help="skip Procrustes alignment on the anchors")
+    ap.add_argument("--remesh", choices=REMESH_MODES, default="off",
+                    help="remesh the input first (off: a valid file keeps its vertices and indices exactly)")
     args = ap.parse_args(argv)
-    with exit_on_user_error(TargetFileError, DeformInputError):
+    with exit_on_user_error(TargetFileError, DeformInputError, IndexMapError):
         out = check_output_file(args.out, OUT_SUFFIXES)  # before any work
-        mesh = load_mesh(args.mesh)
+        mesh = load_mesh(args.mesh, settings=MeshSettings(remesh=args.remesh))
         h_idx, h_pos = read_targets(args.handles)
         a_idx, a_pos = read_targets(args.anchors)
+        mapped = []
+        if Path(args.mesh).is_file():  # indices count the file's vertices: carry them to the prepared mesh
+            moved = carry_indices({"handles": h_idx, "anchors": a_idx}, file_vertices(args.mesh), mesh)
+            h_idx, a_idx = moved["handles"].indices, moved["anchors"].indices
+            mapped = [f"{name}: {m.changed} of {len(m.indices)} indices changed (largest distance {m.distance:.3g} "
+                      "mesh units)" for name, m in moved.items() if m.changed]
         try:
             verts, residual = deform_to_targets(mesh, h_idx, h_pos, a_idx, a_pos, args.method, args.lam,
                                                 not args.no_align)
@@ -121,8 +137,10 @@ def main(argv: list[str] | None = None) -> int:
                 from None
         data = trimesh.Trimesh(verts, mesh.faces, process=False).export(file_type=out.suffix.lower()[1:])
         write_output(out, data)
-    for note in mesh.metadata.get("grt_repairs", []):
-        print(f"repaired input: {note}")
+    for line in describe_preparation(mesh):
+        print(line)
+    for line in mapped:
+        print(f"indices of {args.mesh} carried to the prepared mesh (nearest vertex): {line}")
     print(f"method={args.method} handles={len(h_idx)} anchors={len(a_idx)} "
           f"max handle residual={residual:.3e} (mesh units, before alignment)")
     print(f"wrote {out} ({len(verts)} vertices, {len(mesh.faces)} faces)")

@@ -22,6 +22,8 @@ from omegaconf import DictConfig, OmegaConf
 
 import grt.config  # registers the config schemas and resolvers before composition
 from grt.geometry.mesh import check_object_size, load_mesh, mesh_hash
+from grt.geometry.prepare import MeshSettings
+from grt.geometry.prepare import describe as describe_preparation
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
 
@@ -39,8 +41,9 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
 
     score = ScoreSpec.from_task(cfg.task)
     scale = cfg.get("object_scale", 1.0)
-    mesh = load_mesh(cfg.object, scale=scale)
+    mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.get("mesh")))
     check_object_size(mesh)  # a mesh in millimetres: refused before any simulation
+    print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(_plain(cfg.task), instantiate(cfg.policy), mesh, scale)
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
@@ -53,6 +56,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     wall = time.perf_counter() - start
     summary = {**result.summary(ci=score.ci), **score.fields(), "object": str(cfg.object),
                "mesh_hash": mesh_hash(mesh.vertices, mesh.faces),
+               "mesh_preparation": mesh.metadata.get("grt_prepare"),
                "wall_s": round(wall, 3), "worker_s": round(result.wall_s, 3),
                "trials_per_s": round(len(seeds) / wall, 4), "collision_s": round(collision_s, 4)}
     output_dir.mkdir(parents=True, exist_ok=True)

@@ -22,6 +22,8 @@ from omegaconf import DictConfig
 import grt.config  # registers the object_name resolver used in conf/select.yaml
 from grt.errors import OutputError, exit_on_user_error, run_cli, write_output
 from grt.geometry.mesh import UnitCubeFrame, check_object_size, load_mesh
+from grt.geometry.prepare import MeshSettings
+from grt.geometry.prepare import describe as describe_preparation
 from grt.selectors.base import HandleSet
 from grt.selectors.panel import render_panel
 
@@ -34,7 +36,8 @@ def panel_png(mesh: trimesh.Trimesh, result: HandleSet) -> bytes:
     return render_panel(unit, mesh.faces, unit[points], highlight=np.isin(points, result.handles))
 
 
-def select(object_spec: str, task: str, selector, out_dir: str | Path, object_scale: float = 1.0) -> dict:
+def select(object_spec: str, task: str, selector, out_dir: str | Path, object_scale: float = 1.0,
+           mesh_settings: MeshSettings | None = None) -> dict:
     """Run a selector on an object and write ``handles.json`` and ``panel.png``.
 
     Args:
@@ -43,9 +46,11 @@ def select(object_spec: str, task: str, selector, out_dir: str | Path, object_sc
         selector: a :class:`grt.selectors.base.HandleSelector`.
         out_dir: output folder (created).
         object_scale: meters per mesh unit (0.001 for a mesh in millimetres).
+        mesh_settings: how the mesh is prepared (``None``: no remeshing); the indices in ``handles.json``
+            are those of the prepared mesh.
 
     Returns:
-        The ``handles.json`` record.
+        The ``handles.json`` record (with ``mesh_preparation``: repairs, remesh, fidelity figures).
 
     Raises:
         grt.objects.UnknownObjectError, grt.geometry.mesh.MeshError: a bad object (or one not in meters).
@@ -57,12 +62,14 @@ def select(object_spec: str, task: str, selector, out_dir: str | Path, object_sc
     except OSError as exc:
         raise OutputError(f"cannot create {out}: {exc.strerror}; choose a folder you can write to "
                           "(out_dir=PATH)") from None
-    mesh = load_mesh(object_spec, scale=object_scale)
+    mesh = load_mesh(object_spec, scale=object_scale, settings=mesh_settings)
     check_object_size(mesh)
+    print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     result = selector.select(mesh, task)
     record = {"object": str(object_spec), "task": task, "selector": type(selector).__name__,
               **result.to_dict(mesh)}
     record["units"] = "positions in meters (the object's frame); indices are mesh vertex indices"
+    record["mesh_preparation"] = mesh.metadata.get("grt_prepare")
     for key in ("semantic_object_label", "expected_transformations"):
         if key in result.notes:
             record[key] = result.notes[key]
@@ -92,7 +99,8 @@ def main(cfg: DictConfig) -> None:
         grt.config.validate(cfg)
         out_dir = Path(cfg.paths.output_dir)
         selector = hydra.utils.instantiate(cfg.selector)
-        record = select(cfg.object, cfg.task, selector, out_dir, cfg.get("object_scale", 1.0))
+        record = select(cfg.object, cfg.task, selector, out_dir, cfg.get("object_scale", 1.0),
+                        MeshSettings.from_config(cfg.get("mesh")))
     print(describe(record, out_dir))
 
 

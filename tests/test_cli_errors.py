@@ -184,6 +184,7 @@ def test_select_writes_into_hydra_run_dir(files):
     trimesh.creation.icosphere(subdivisions=2, radius=0.04).export(mesh)
     out = files / "chosen"
     proc = subprocess.run([sys.executable, "-m", "grt.select", f"object={mesh}", "selector.k=4",
+                           "mesh.remesh=off",  # a coarse sphere: kept, so its vertices lie on the radius
                            f"hydra.run.dir={out}"], cwd=ROOT, capture_output=True, text=True, timeout=180)
     assert proc.returncode == 0, proc.stderr
     record = json.loads((out / "handles.json").read_text())

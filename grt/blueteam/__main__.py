@@ -41,8 +41,9 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
         write_table,
     )
     from grt.evaluators.collision import make_collision
-    from grt.geometry.deform import ShapeDeformer
+    from grt.geometry.deform import ShapeDeformer, deformer_options
     from grt.geometry.mesh import load_mesh
+    from grt.geometry.prepare import MeshSettings
     from grt.policies.rsl_rl import load_checkpoint
     from grt.redteam import episode_seeds
     from grt.scores import ScoreSpec
@@ -54,10 +55,10 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     task, policy_cfg = _plain(run_cfg.task), _plain(run_cfg.policy)
     checkpoint = trainable_checkpoint(policy_cfg)
     ckpt = load_checkpoint(checkpoint)
-    nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0))
+    nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0),  # prepared as the run did
+                        settings=MeshSettings.from_config(run_cfg.get("mesh")))
     handles = HandleSet.from_json((run_dir / "handles.json").read_text())
-    deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, lam=run_cfg.deformer.lam,
-                             method=run_cfg.deformer.method)
+    deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **deformer_options(run_cfg.deformer))
     ev_cfg = run_cfg.evaluator
     collision = make_collision(ev_cfg.collision, nominal, _plain(ev_cfg.coacd), f"{cfg.paths.cache_dir}/coacd",
                                ev_cfg.max_hull_vertices)

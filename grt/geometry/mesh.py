@@ -10,14 +10,14 @@ the fix. A mesh is never silently used as it came.
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+import time
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
-COMPONENT_POLICIES = ("largest", "error", "keep")
 
 
 class MeshError(ValueError):
@@ -25,22 +25,26 @@ class MeshError(ValueError):
 
 
 # --------------------------------------------------------------------------------------- loading
-def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest",
-              scale: float = 1.0) -> trimesh.Trimesh:
+def load_mesh(spec: str | Path, repair: bool = True, components: str | None = None,
+              scale: float = 1.0, settings=None) -> trimesh.Trimesh:
     """Resolve a built-in object name or a mesh file into a validated mesh in meters.
 
     Args:
         spec: a built-in object name (``grt.objects.list_objects()``) or a path to an OBJ, STL, PLY,
             GLB/GLTF or OFF file (meters).
         repair: fix what can be fixed safely (see :func:`prepare_mesh`); ``False`` rejects instead.
-        components: policy for several connected components, see :func:`prepare_mesh`.
+        components: policy for separate bodies (``None``: ``settings.components``, default ``"union"``),
+            see :func:`prepare_mesh`.
         scale: meters per file unit, applied after validation (the apps' ``object_scale``; 0.001 for a
             mesh in millimetres). Vertex order and faces are kept.
+        settings: a :class:`grt.geometry.prepare.MeshSettings` (remeshing, fidelity tolerance); ``None``:
+            defaults (no remeshing of a valid mesh, so its vertices are the file's).
 
     Returns:
         A watertight, manifold, consistently outward-oriented ``trimesh.Trimesh``;
         ``mesh.metadata["grt_repairs"]`` lists what was repaired, ``mesh.metadata["grt_source"]``
-        where it came from.
+        where it came from, ``mesh.metadata["grt_prepare"]`` the whole preparation (repairs, remesh
+        decision, fidelity figures in mm, timings in s; see :func:`grt.geometry.prepare.describe`).
 
     Raises:
         MeshError: unreadable, empty or unusable file (the message names the problem and the fix).
@@ -48,6 +52,8 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest"
     """
     from grt.objects import UnknownObjectError, get_object, list_objects
 
+    start = time.perf_counter()
+    read_as = None  # vertices of a file as read
     text = str(spec)
     path = Path(text).expanduser()
     if text in list_objects():
@@ -56,6 +62,7 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest"
     elif path.is_file():
         mesh = _read_file(path)
         source = str(path)
+        read_as = len(mesh.vertices)
     elif path.suffix.lower() in MESH_SUFFIXES or "/" in text:
         raise MeshError(f"mesh file not found: {text!r}. Give an existing path or one of the built-in "
                         f"objects: {', '.join(list_objects())}.")
@@ -64,10 +71,19 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str = "largest"
     if not (isinstance(scale, (int, float)) and not isinstance(scale, bool) and np.isfinite(scale) and scale > 0):
         raise MeshError(f"object_scale={scale!r}: it must be a finite number > 0 (meters per mesh unit, "
                         "e.g. 0.001 for a mesh in millimetres)")
-    mesh = prepare_mesh(mesh, repair=repair, components=components)
+    try:
+        mesh = prepare_mesh(mesh, repair=repair, components=components, settings=settings,
+                            builtin=source.startswith("builtin:"), mm_per_unit=1000.0 * float(scale))
+    except MeshError as exc:
+        raise MeshError(f"{text}: {exc}") from None
     if scale != 1.0:  # 1.0 keeps the vertices bit-identical (mesh hashes of runs from before object_scale)
         mesh.vertices = np.asarray(mesh.vertices) * float(scale)
     mesh.metadata["grt_source"] = source
+    prep = mesh.metadata["grt_prepare"]
+    if path.is_file() and read_as is not None:
+        _note_reading(path, read_as, mesh)
+    prep.update(source=source, scale=float(scale))
+    prep["timings_s"]["total"] = round(time.perf_counter() - start, 4)  # reading the file included
     return mesh
 
 
@@ -101,6 +117,19 @@ def check_object_size(mesh: trimesh.Trimesh, key: str = "object_scale") -> None:
     raise MeshError(f"the object is {size * 1000:.3g} mm across (bounding box {box} m), less than {low * 1000:g} mm: "
                     f"a mesh in other units than meters (or scaled twice)? set {key}={factor:g} "
                     f"(meters per mesh unit; it makes the object {size * factor:.3g} m across)")
+
+
+def _note_reading(path: Path, read_as: int, mesh: trimesh.Trimesh) -> None:
+    """Record, first among the repairs, that reading the file already changed its vertex list."""
+    if path.suffix.lower() != ".obj":
+        return
+    from grt.geometry.indices import file_vertices
+
+    written = len(file_vertices(path))
+    if written != read_as:
+        note = (f"read the file's {written} vertices as {read_as} (unreferenced vertices dropped, vertices on "
+                "texture seams split; vertex indices are carried by position, see grt.geometry.indices)")
+        mesh.metadata["grt_repairs"].insert(0, note)
 
 
 def _read_file(path: Path) -> trimesh.Trimesh:
@@ -144,7 +173,7 @@ def mesh_problems(mesh: trimesh.Trimesh) -> list[str]:
         problems.append(f"{int((~referenced).sum())} unreferenced vertices")
     if not mesh.is_watertight:
         problems.append("not watertight (has holes or open boundary edges)")
-    elif not _manifold3d_accepts(mesh):
+    elif not manifold3d_accepts(mesh):
         problems.append("not manifold (manifold3d rejects it: non-manifold edges or vertices)")
     if mesh.is_watertight and not mesh.is_winding_consistent:
         problems.append("inconsistent face winding")
@@ -157,7 +186,8 @@ def mesh_problems(mesh: trimesh.Trimesh) -> list[str]:
     return problems
 
 
-def _manifold3d_accepts(mesh: trimesh.Trimesh) -> bool:
+def manifold3d_accepts(mesh: trimesh.Trimesh) -> bool:
+    """Whether manifold3d accepts ``mesh`` as a closed manifold solid."""
     import manifold3d
 
     m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices, np.float32),
@@ -165,34 +195,44 @@ def _manifold3d_accepts(mesh: trimesh.Trimesh) -> bool:
     return m.status() == manifold3d.Error.NoError and m.num_tri() > 0
 
 
-def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str = "largest") -> trimesh.Trimesh:
-    """Validate an in-memory mesh and repair what can be repaired safely.
+def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | None = None,
+                 settings=None, builtin: bool = False, mm_per_unit: float = 1000.0) -> trimesh.Trimesh:
+    """Validate an in-memory mesh, repair it faithfully, remesh it if asked, and check what changed.
 
-    Repairs (each recorded in ``metadata["grt_repairs"]``): merge duplicate vertices (STL files store
-    triangles separately), drop degenerate/duplicate faces and unreferenced vertices, fix winding and
-    inward normals, fill small holes (trimesh), and as a last resort MeshFix (pymeshfix) for holes and
-    non-manifold geometry. Several components follow ``components``: ``"largest"`` keeps the largest
-    by volume (and records what was dropped), ``"error"`` rejects, ``"keep"`` keeps all (each then
-    needs its own anchor in a deformation).
+    The steps are those of :mod:`grt.geometry.prepare`: exact clean-up (merge duplicate vertices, drop
+    degenerate/duplicate faces and unreferenced vertices, consistent outward winding, 3-4 vertex holes);
+    overlapping closed bodies united (manifold3d); an open surface closed by a watertight manifold
+    conversion (point-cloud-utils); isotropic remeshing (gpytoolbox); then a fidelity check against the
+    input. Each repair is recorded in ``metadata["grt_repairs"]``, the figures in ``metadata["grt_prepare"]``.
 
     Args:
         mesh: input mesh (not modified).
         repair: ``False`` raises on the first problem instead of repairing.
-        components: ``"largest" | "error" | "keep"``.
+        components: separate bodies: ``"union" | "largest" | "error" | "keep"`` (``None``: ``settings``'s,
+            default ``"union"``: overlapping bodies united, bodies apart refused).
+        settings: a :class:`grt.geometry.prepare.MeshSettings` (``None``: defaults, no remeshing).
+        builtin: the mesh is a built-in object (``remesh="auto"`` keeps it as it is).
+        mm_per_unit: millimetres per mesh unit, for the fidelity figures and tolerance (1000: meters).
 
     Returns:
         A new valid mesh.
 
     Raises:
-        MeshError: NaN/inf vertices, an empty mesh, or a mesh that cannot be repaired.
+        MeshError: NaN/inf vertices, an empty mesh, a mesh that cannot be repaired, separate bodies, or a
+            repair that changed the object more than ``settings`` allow.
     """
-    if components not in COMPONENT_POLICIES:
-        raise MeshError(f"unknown components policy {components!r}; use one of {COMPONENT_POLICIES}")
+    from grt.geometry import fidelity
+    from grt.geometry import prepare as prep
+
+    settings = settings or prep.MeshSettings()
+    if components is not None and components != settings.components:
+        settings = replace(settings, components=components)
     if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
         raise MeshError("the mesh is empty (no faces). Export a closed triangle mesh.")
     if not np.all(np.isfinite(mesh.vertices)):
         raise MeshError("the mesh has NaN or infinite vertex coordinates; it cannot be repaired "
                         "automatically. Re-export it from your modelling tool.")
+    t0 = time.perf_counter()
     repairs: list[str] = []
     out = trimesh.Trimesh(vertices=np.array(mesh.vertices, np.float64), faces=np.array(mesh.faces),
                           process=False)
@@ -200,34 +240,72 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str = "
     if problems and not repair:
         raise MeshError(f"invalid mesh: {'; '.join(problems)}. Repair it (e.g. pymeshfix, MeshLab) "
                         "or load it with repair=True.")
+    solid = prep.Solid(out, out)
+    edge = settings.edge_length * float(np.linalg.norm(out.extents))  # target edge length, mesh units
     if problems:
-        out = _basic_cleanup(out, repairs)
-    out = _handle_components(out, components, repairs)
-    if not out.is_watertight or not _manifold3d_accepts(out):
-        trimesh.repair.fill_holes(out)
-        if out.is_watertight and _manifold3d_accepts(out):
-            repairs.append("filled holes (trimesh.repair.fill_holes)")
-        else:
-            out = _meshfix(out, repairs)
-    if not out.is_winding_consistent:
-        trimesh.repair.fix_winding(out)
-        repairs.append("made face winding consistent")
-    if out.volume < 0:
-        out.invert()
-        repairs.append("flipped inward-facing normals")
+        solid = prep.solidify(_basic_cleanup(out, repairs), settings.components, repairs, edge,
+                              settings.watertight_resolution)
+    out = solid.mesh
+    t1 = time.perf_counter()
+    remeshed, decision = prep.remesh_decision(out, settings, edge, builtin, solid.must_remesh)
+    if remeshed:
+        out = prep.remesh(out, edge, repairs)
     remaining = mesh_problems(out)
-    if components == "keep":
+    if settings.components == "keep":
         remaining = [p for p in remaining if "connected components" not in p]
     if remaining:
         raise MeshError(f"mesh could not be repaired: {'; '.join(remaining)}. The method needs a "
                         "watertight manifold mesh: repair it in a modelling tool (e.g. MeshLab, "
                         "Blender's 3D-print toolbox) and load it again.")
+    t2 = time.perf_counter()
+    exact = not (solid.moved or remeshed)
+    figures = fidelity.unchanged() if exact else fidelity.measure(solid.reference, out, mm_per_unit,
+                                                                  solid.reference_volume)
+    t3 = time.perf_counter()
+    _check_fidelity(figures, settings, repairs, out, mm_per_unit)
     out.metadata["grt_repairs"] = repairs
+    out.metadata["grt_prepare"] = {
+        "source": "mesh", "builtin": builtin, "settings": asdict(settings),
+        "input": {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "problems": problems},
+        "output": {"vertices": len(out.vertices), "faces": len(out.faces)},
+        "repairs": repairs, "exact": exact,
+        "remesh": {"done": remeshed, "decision": decision, "edge_length_mm": round(edge * mm_per_unit, 4)},
+        "fidelity": figures, "tolerance": {"fidelity_mm": settings.fidelity_mm, "volume_tol": settings.volume_tol},
+        "timings_s": {"repair": round(t1 - t0, 4), "remesh": round(t2 - t1, 4), "fidelity": round(t3 - t2, 4),
+                      "total": round(t3 - t0, 4)},
+    }
     return out
+
+
+def _check_fidelity(figures: dict, settings, repairs: list[str], out: trimesh.Trimesh, mm_per_unit: float) -> None:
+    """Refuse a prepared mesh further from its input than ``settings`` allow (one line: what and how to fix)."""
+    ratio, dist = figures["volume_ratio"], figures["hausdorff_mm"]
+    far, swollen = dist > settings.fidelity_mm, not abs(ratio - 1.0) <= settings.volume_tol
+    if not (far or swollen):
+        return
+    scaled = out.copy()
+    scaled.vertices = np.asarray(scaled.vertices) * (mm_per_unit / 1000.0)
+    check_object_size(scaled)  # a unit mistake is the likelier cause (and its figures are 1000x off)
+    what = []
+    if far:
+        what.append(f"the surface moved up to {dist:.3g} mm (mesh.fidelity_mm={settings.fidelity_mm:g})")
+    if swollen:
+        what.append(f"the volume changed x{ratio:.3f} (mesh.volume_tol={settings.volume_tol:g})")
+    steps = "; ".join(repairs) or "none"
+    remeshed = any(r.startswith("remeshed") for r in repairs)
+    fix = ("repair or close the mesh in a modelling tool (MeshLab, Blender's 3D-print toolbox)"
+           + (f", or remesh finer (mesh.edge_length below {settings.edge_length:g})" if remeshed else "")
+           + ", or accept the change with a larger mesh.fidelity_mm / mesh.volume_tol")
+    raise MeshError(f"preparing the mesh changed the object more than allowed: {' and '.join(what)}. "
+                    f"Steps: {steps}. Fix: {fix}")
 
 
 def _basic_cleanup(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
     n_v, n_f = len(mesh.vertices), len(mesh.faces)
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.vertices) < n_v:
+        repairs.append(f"removed {n_v - len(mesh.vertices)} unreferenced vertices")
+    n_v = len(mesh.vertices)
     mesh.merge_vertices()
     if len(mesh.vertices) < n_v:
         repairs.append(f"merged {n_v - len(mesh.vertices)} duplicate vertices")
@@ -239,35 +317,8 @@ def _basic_cleanup(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh
     n_v = len(mesh.vertices)
     mesh.remove_unreferenced_vertices()
     if len(mesh.vertices) < n_v:
-        repairs.append(f"removed {n_v - len(mesh.vertices)} unreferenced vertices")
+        repairs.append(f"removed {n_v - len(mesh.vertices)} vertices of removed faces")
     return mesh
-
-
-def _handle_components(mesh: trimesh.Trimesh, policy: str, repairs: list[str]) -> trimesh.Trimesh:
-    parts = mesh.split(only_watertight=False)
-    if len(parts) <= 1 or policy == "keep":
-        return mesh
-    if policy == "error":
-        raise MeshError(f"the mesh has {len(parts)} connected components; GRT deforms one solid. "
-                        "Merge them in a modelling tool, or pass components='largest' or 'keep'.")
-    sizes = [abs(p.volume) if p.is_watertight else p.area for p in parts]
-    best = int(np.argmax(sizes))
-    repairs.append(f"kept the largest of {len(parts)} connected components "
-                   f"(dropped {len(parts) - 1} with {sum(len(p.faces) for i, p in enumerate(parts) if i != best)} faces)")
-    return trimesh.Trimesh(parts[best].vertices, parts[best].faces, process=False)
-
-
-def _meshfix(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
-    import pymeshfix
-
-    fixer = pymeshfix.MeshFix(np.asarray(mesh.vertices), np.asarray(mesh.faces))
-    fixer.repair()
-    fixed = trimesh.Trimesh(fixer.points, fixer.faces, process=False)
-    if len(fixed.faces) == 0:
-        raise MeshError("MeshFix could not repair the mesh (nothing left). Provide a watertight mesh.")
-    repairs.append(f"repaired holes / non-manifold geometry with MeshFix "
-                   f"({len(mesh.faces)} -> {len(fixed.faces)} faces)")
-    return fixed
 
 
 def mesh_hash(vertices: np.ndarray, faces: np.ndarray) -> str:

@@ -1,0 +1,405 @@
+"""The input pipeline: from a user's mesh to the closed, uniformly meshed solid GRT deforms, checked for fidelity.
+
+Steps (each recorded in ``mesh.metadata["grt_repairs"]``, the figures in ``mesh.metadata["grt_prepare"]``):
+
+1. Exact clean-up (:func:`grt.geometry.mesh.prepare_mesh`): merge duplicate vertices, drop degenerate or
+   duplicate faces and unreferenced vertices, make the winding consistent and outward. The surface does
+   not move.
+2. One solid (:func:`solidify`): closed bodies that overlap are united (manifold3d's exact boolean
+   union); an open surface (holes larger than a quad, a can whose lid and wall are separate open sheets)
+   is closed by point-cloud-utils' watertight manifold conversion (Huang et al. 2018) and projected back
+   onto the input. Bodies that stay separate (two spheres, two cubes touching along an edge) are refused
+   with a message, or, with ``components="largest"``, all but the largest are dropped and reported.
+3. Isotropic remeshing (gpytoolbox's ``remesh_botsch``) to a target edge length that is a fraction of the
+   bounding-box diagonal, after a quadric decimation of very fine inputs. ``remesh="auto"`` remeshes a
+   mesh file that is too coarse (most of its area in triangles with an edge over 3x the target) or too
+   fine (over 4x the target's face count), any mesh with slivers (over 1% of its faces with longest
+   edge² > 10 x twice the area: their normals flip under deformation, so CrashShapes would hold folded
+   faces; of the built-ins, ``mug`` and ``round_peg``), and always the output of step 2; other built-in
+   objects are kept as they are.
+4. Fidelity (:mod:`grt.geometry.fidelity`): volume ratio, two-sided Hausdorff and Chamfer distance (mm)
+   between the input surface and the result; above ``fidelity_mm`` or ``volume_tol`` a one-line
+   :class:`~grt.geometry.mesh.MeshError` says what changed and how to fix it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from grt.geometry import fidelity
+from grt.geometry.mesh import MeshError, manifold3d_accepts
+
+REMESH_MODES = ("auto", "on", "off")
+COMPONENT_POLICIES = ("union", "largest", "error", "keep")
+FINE_FACTOR = 4.0  # "too fine": more faces than this times the target's face count
+COARSE_EDGE, COARSE_AREA = 3.0, 0.5  # "coarse": over half the area in triangles with an edge > 3x the target
+REMESH_ITERATIONS = 10
+# "slivers": more than 1% of the faces with longest edge² / (2 area) > 10 (an equilateral triangle: 1.15).
+# A sliver's normal flips under a small smooth deformation, so its CrashShapes would hold folded faces.
+SLIVER_ASPECT, SLIVER_SHARE = 10.0, 0.01
+JOIN_GROWTH = 0.1  # bodies closer than 2x this times the target edge are joined
+CREASE_DEG = 30.0  # dihedral angle of a sharp edge kept by the remeshing
+
+
+@dataclass(frozen=True)
+class MeshSettings:
+    """How a mesh is prepared: the ``mesh`` block of ``conf/run.yaml``, ``evaluate.yaml`` and ``select.yaml``.
+
+    Attributes:
+        remesh: ``"auto"`` (mesh files that are too coarse or too fine, and converted surfaces), ``"on"``
+            (every mesh, built-ins too) or ``"off"`` (only a converted surface, which must be remeshed).
+        edge_length: target edge length as a fraction of the bounding-box diagonal (0.02: ~3 mm on a mug).
+        fidelity_mm: largest two-sided Hausdorff distance allowed between input and prepared mesh (mm).
+        volume_tol: largest relative change of the enclosed volume allowed (0.05: 5%).
+        components: separate bodies after union: ``"union"`` refuses them, ``"largest"`` keeps the largest
+            (the others are reported), ``"keep"`` keeps all (each needs its own anchor), ``"error"``
+            refuses any input with more than one body.
+        watertight_resolution: octree leaves of the watertight conversion (point-cloud-utils' default).
+    """
+
+    remesh: str = "off"
+    edge_length: float = 0.02
+    fidelity_mm: float = 2.0
+    volume_tol: float = 0.05
+    components: str = "union"
+    watertight_resolution: int = 20_000
+
+    def __post_init__(self):
+        if self.remesh not in REMESH_MODES:
+            raise MeshError(f"mesh.remesh={self.remesh!r}: use one of {', '.join(REMESH_MODES)}")
+        if self.components not in COMPONENT_POLICIES:
+            raise MeshError(f"mesh.components={self.components!r}: use one of {', '.join(COMPONENT_POLICIES)}")
+        for key, high in (("edge_length", 0.5), ("fidelity_mm", float("inf")), ("volume_tol", float("inf"))):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= high:
+                raise MeshError(f"mesh.{key}={value!r}: it must be a number > 0"
+                                + (f" and <= {high:g} (a fraction of the bounding-box diagonal)" if high < 1 else ""))
+
+    @classmethod
+    def from_config(cls, node) -> MeshSettings:
+        """Settings from a config mapping (``cfg.mesh``); ``None`` gives the defaults (a run from before the key)."""
+        if node is None:
+            return cls()
+        known = {f.name for f in fields(cls)}
+        given = dict(node.items())
+        unknown = sorted(set(given) - known)
+        if unknown:
+            raise MeshError(f"mesh.{unknown[0]} is not a mesh setting; the keys are {', '.join(sorted(known))}")
+        return cls(**given)
+
+
+@dataclass
+class Solid:
+    """Step 2's result: the closed mesh, what to measure it against, and what happened."""
+
+    mesh: trimesh.Trimesh
+    reference: trimesh.Trimesh  # the input surface (mesh units)
+    reference_volume: float | None = None  # None: measured from ``reference``
+    moved: bool = False  # the surface changed (else fidelity is exact)
+    must_remesh: str = ""  # why remeshing is needed whatever the setting
+
+
+def _to_manifold(mesh: trimesh.Trimesh):
+    import manifold3d
+
+    return manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.asarray(mesh.vertices, np.float64),
+                                                 tri_verts=np.asarray(mesh.faces, np.uint32)))
+
+
+def _from_manifold(solid) -> trimesh.Trimesh:
+    m = solid.to_mesh64()
+    return trimesh.Trimesh(np.asarray(m.vert_properties)[:, :3], np.asarray(m.tri_verts, np.int64), process=False)
+
+
+def bodies_of(mesh: trimesh.Trimesh) -> list[trimesh.Trimesh]:
+    """The connected components of ``mesh`` (by shared edges), largest first; nothing else changed.
+
+    (``trimesh.Trimesh.split`` is not used: it also fills small holes, silently.)
+    """
+    groups = trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)), min_len=1)
+    parts = []
+    for group in sorted(groups, key=len, reverse=True):
+        part = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)[np.sort(group)], process=False)
+        part.remove_unreferenced_vertices()
+        parts.append(part)
+    return parts
+
+
+def _closed(mesh: trimesh.Trimesh) -> bool:
+    return bool(mesh.is_watertight and manifold3d_accepts(mesh))
+
+
+def _orient(part: trimesh.Trimesh) -> tuple[bool, bool]:
+    """Make a closed part's winding consistent and outward; (winding fixed, normals flipped)."""
+    rewound = not part.is_winding_consistent
+    if rewound:
+        trimesh.repair.fix_winding(part)
+    inverted = bool(part.volume < 0)
+    if inverted:
+        part.invert()
+    return rewound, inverted
+
+
+def solidify(mesh: trimesh.Trimesh, components: str, repairs: list[str], edge: float,
+             resolution: int = 20_000) -> Solid:
+    """Make ``mesh`` (cleaned, mesh units) one closed solid (step 2 of the module docstring).
+
+    Closed bodies that stay apart after their union but nearly touch (every gap <= ``edge``, e.g. the
+    hulls of a convex decomposition) are joined by the watertight conversion.
+
+    Raises:
+        MeshError: separate bodies under ``components="union"`` or ``"error"``; a conversion that fails.
+    """
+    parts = bodies_of(mesh)
+    if components == "error" and len(parts) > 1:
+        raise MeshError(f"the mesh has {len(parts)} separate bodies; GRT deforms one solid. Join them in a "
+                        "modelling tool, or set mesh.components=union (unite overlapping bodies) or largest")
+    rewound = inverted = 0
+    for part in parts:
+        if not _closed(part):
+            before = len(part.faces)
+            trimesh.repair.fill_holes(part)  # only 3- or 4-vertex holes: a flat patch, nothing invented
+            if _closed(part):
+                repairs.append(f"filled small holes ({len(part.faces) - before} faces added, trimesh)")
+        if part.is_watertight:
+            fixed = _orient(part)
+            rewound, inverted = rewound + fixed[0], inverted + fixed[1]
+    for count, what in ((rewound, "made face winding consistent"), (inverted, "flipped inward-facing normals")):
+        if count:
+            repairs.append(what + (f" on {count} of {len(parts)} bodies" if len(parts) > 1 else ""))
+    moved = any(r.startswith("filled") for r in repairs)
+    if all(_closed(p) for p in parts):
+        if len(parts) == 1 or components == "keep":
+            joined = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
+            return Solid(joined, joined.copy(), moved=moved)
+        return _unite(parts, components, repairs, edge, resolution)
+    return _convert(mesh, components, repairs, resolution)
+
+
+def _unite(parts: list[trimesh.Trimesh], components: str, repairs: list[str], edge: float,
+           resolution: int) -> Solid:
+    import manifold3d
+
+    union = manifold3d.Manifold.batch_boolean([_to_manifold(p) for p in parts], manifold3d.OpType.Add)
+    bodies = sorted(union.decompose(), key=lambda b: -b.volume())
+    faces = sum(len(p.faces) for p in parts)
+    if len(bodies) == 1:
+        out = _from_manifold(union)
+        repairs.append(f"united {len(parts)} overlapping bodies into one solid (manifold3d boolean union, "
+                       f"{faces} -> {len(out.faces)} faces)")
+        return Solid(out, out.copy(), abs(float(union.volume())), moved=False,
+                     must_remesh="a boolean union leaves sliver triangles along its intersection curves")
+    grow = JOIN_GROWTH * edge
+    gaps = [min(b.min_gap(o, 1e9) for o in bodies if o is not b) for b in bodies]
+    if max(gaps) < 2 * grow and components != "keep":  # touching or nearly (convex-decomposition hulls)
+        grown = [_to_manifold(_grown(_from_manifold(b), grow)) for b in bodies]
+        union = manifold3d.Manifold.batch_boolean(grown, manifold3d.OpType.Add)
+        if len(union.decompose()) == 1:
+            out = _from_manifold(union)
+            reference = trimesh.util.concatenate([_from_manifold(b) for b in bodies])
+            repairs.append(f"joined {len(bodies)} bodies that touch or nearly touch (gaps up to {max(gaps):.3g} mesh "
+                           f"units) by growing each {grow:.3g} mesh units along its normals before the union")
+            return Solid(out, reference, sum(abs(b.volume()) for b in bodies), moved=True,
+                         must_remesh="a boolean union leaves sliver triangles along its intersection curves")
+    kept = _separate_bodies(bodies, components, repairs, "closed bodies")
+    if components == "keep":
+        return Solid(kept, kept.copy(), moved=False)
+    return Solid(kept, kept.copy(), abs(float(kept.volume)), moved=False,
+                 must_remesh="" if len(parts) == len(bodies) else "a boolean union leaves sliver triangles")
+
+
+def _grown(mesh: trimesh.Trimesh, distance: float) -> trimesh.Trimesh:
+    """``mesh`` with every vertex moved ``distance`` along its (area-weighted) normal."""
+    return trimesh.Trimesh(np.asarray(mesh.vertices) + distance * np.asarray(mesh.vertex_normals), mesh.faces,
+                           process=False)
+
+
+def _separate_bodies(bodies: list, components: str, repairs: list[str], what: str) -> trimesh.Trimesh:
+    """Apply the policy to bodies that stay apart; ``bodies`` are manifold3d solids, largest first."""
+    gap = min(bodies[0].min_gap(b, 1e9) for b in bodies[1:])
+    size = float(np.linalg.norm(np.subtract(*_bounds(bodies[0]))))
+    how = (f"{len(bodies)} separate {what} (the nearest {gap / size:.1%} of the largest one's size apart)" if gap > 0
+           else f"{len(bodies)} {what} that touch only along an edge or at a point (no shared volume)")
+    if components == "union":
+        raise MeshError(f"the mesh has {how}: GRT deforms one solid and will not drop a body silently. "
+                        "Join them in a modelling tool (make them overlap), or set mesh.components=largest to keep "
+                        "the largest (the others are reported)")
+    volumes = [b.volume() for b in bodies]
+    if components == "keep":
+        repairs.append(f"kept {how} as they are (components=keep: each needs its own anchor)")
+        return trimesh.util.concatenate([_from_manifold(b) for b in bodies])
+    repairs.append(f"DROPPED {len(bodies) - 1} of {how}, keeping the largest "
+                   f"({sum(volumes[1:]) / sum(volumes):.1%} of the volume dropped; components=largest)")
+    return _from_manifold(bodies[0])
+
+
+def _bounds(solid) -> tuple[np.ndarray, np.ndarray]:
+    box = solid.bounding_box()
+    return np.asarray(box[3:6]), np.asarray(box[:3])
+
+
+def _convert(mesh: trimesh.Trimesh, components: str, repairs: list[str], resolution: int) -> Solid:
+    """Close an open or non-manifold surface: watertight manifold conversion, then projection onto the input."""
+    import point_cloud_utils as pcu
+
+    v = np.ascontiguousarray(mesh.vertices, np.float64)
+    f = np.ascontiguousarray(mesh.faces, np.int32)
+    vw, fw = pcu.make_mesh_watertight(v, f, resolution=resolution, seed=0)
+    if len(fw) == 0:
+        raise MeshError("the watertight conversion produced nothing (a mesh of a few loose triangles?). Provide a "
+                        "closed mesh, or close it in a modelling tool (MeshLab: Close Holes)")
+    closest, _ = fidelity.closest_points(vw, mesh)  # the conversion offsets the surface by ~a cell: undo it
+    out = trimesh.Trimesh(closest, np.asarray(fw, np.int64), process=False)
+    if out.volume < 0:
+        out.invert()
+    repairs.append(f"closed the open or non-manifold surface ({len(bodies_of(mesh))} bodies, "
+                   f"{len(mesh.faces)} faces) with point-cloud-utils' watertight manifold conversion "
+                   f"(resolution {resolution}), projected back onto the input")
+    solid = Solid(out, mesh.copy(), moved=True, must_remesh="the watertight conversion's triangles are uneven")
+    bodies = bodies_of(out)
+    if len(bodies) > 1 and components != "keep":
+        kept = _separate_bodies(sorted((_to_manifold(b) for b in bodies), key=lambda b: -b.volume()),
+                                components, repairs, "bodies after closing")
+        solid.mesh = kept
+    return solid
+
+
+# ------------------------------------------------------------------------------------- remeshing
+def target_faces(mesh: trimesh.Trimesh, edge: float) -> int:
+    """Faces of an equilateral triangulation of ``mesh``'s area with edges ``edge`` (mesh units)."""
+    return max(1, int(round(float(mesh.area) / (np.sqrt(3.0) / 4.0 * edge * edge))))
+
+
+def coarse_fraction(mesh: trimesh.Trimesh, edge: float) -> float:
+    """Fraction of the area in triangles with an edge longer than ``COARSE_EDGE * edge``."""
+    tri = np.asarray(mesh.triangles)
+    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
+    area = np.asarray(mesh.area_faces)
+    return float(area[longest > COARSE_EDGE * edge].sum() / max(area.sum(), 1e-300))
+
+
+def sliver_fraction(mesh: trimesh.Trimesh) -> float:
+    """Fraction of the faces whose longest edge² over twice the area exceeds ``SLIVER_ASPECT``."""
+    tri = np.asarray(mesh.triangles)
+    longest2 = (np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2) ** 2).max(1)
+    aspect = longest2 / np.maximum(2.0 * np.asarray(mesh.area_faces), 1e-300)
+    return float((aspect > SLIVER_ASPECT).mean())
+
+
+def remesh_decision(mesh: trimesh.Trimesh, settings: MeshSettings, edge: float, builtin: bool,
+                    must: str = "") -> tuple[bool, str]:
+    """Whether to remesh and why (a sentence recorded in the report)."""
+    if must:
+        return True, f"remeshed: {must}"
+    if settings.remesh == "off":
+        return False, "kept the input's triangles (mesh.remesh=off)"
+    if settings.remesh == "on":
+        return True, "remeshed (mesh.remesh=on)"
+    budget, coarse = target_faces(mesh, edge), coarse_fraction(mesh, edge)
+    if not builtin and len(mesh.faces) > FINE_FACTOR * budget:
+        return True, f"remeshed: too fine ({len(mesh.faces)} faces, {len(mesh.faces) / budget:.1f}x the target's {budget})"
+    if not builtin and coarse > COARSE_AREA:
+        return True, (f"remeshed: coarse ({coarse:.0%} of the area in triangles with an edge over "
+                      f"{COARSE_EDGE:g}x the target edge)")
+    slivers = sliver_fraction(mesh)
+    if slivers > SLIVER_SHARE:  # built-in objects too: their CrashShapes would fold
+        return True, (f"remeshed: {slivers:.1%} of the faces are slivers (longest edge² > {SLIVER_ASPECT:g} x "
+                      "twice the area), whose normals flip under deformation")
+    if builtin:
+        return False, ("kept a built-in object's triangles (mesh.remesh=auto remeshes built-ins only when they "
+                       "have slivers; on: always)")
+    return False, (f"kept the input's triangles: uniform enough ({len(mesh.faces)} faces, "
+                   f"{len(mesh.faces) / budget:.2f}x the target's; {coarse:.0%} of the area in long triangles)")
+
+
+def crease_vertices(mesh: trimesh.Trimesh, angle_deg: float = CREASE_DEG) -> np.ndarray:
+    """Indices of the vertices on edges whose faces meet at more than ``angle_deg`` (sharp features)."""
+    sharp = mesh.face_adjacency_edges[mesh.face_adjacency_angles > np.radians(angle_deg)]
+    return np.unique(sharp).astype(np.int32)
+
+
+def remesh(mesh: trimesh.Trimesh, edge: float, repairs: list[str]) -> trimesh.Trimesh:
+    """Isotropic remeshing to edge length ``edge`` (mesh units).
+
+    A very fine input is decimated first (quadric, to twice the target's face count); a coarser input is
+    first split flat to edges <= ``edge`` (the surface does not move) and its crease vertices are kept
+    fixed, so that the remeshing keeps sharp edges and corners instead of cutting them.
+    """
+    import gpytoolbox
+
+    budget = target_faces(mesh, edge)
+    v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
+    fixed = np.zeros(0, np.int32)
+    if len(f) > 2 * FINE_FACTOR * budget:  # remeshing 300k faces directly takes ~10x longer
+        small = mesh.simplify_quadric_decimation(face_count=2 * budget)
+        if _closed(small):
+            repairs.append(f"decimated {len(f)} -> {len(small.faces)} faces (quadric, fast-simplification)")
+            v, f = np.asarray(small.vertices, np.float64), np.asarray(small.faces, np.int64)
+    elif len(f) < budget:
+        v, f = trimesh.remesh.subdivide_to_size(v, f, max_edge=edge)
+        fixed = crease_vertices(trimesh.Trimesh(v, f, process=False))
+    try:
+        rv, rf = gpytoolbox.remesh_botsch(np.array(v, np.float64), np.array(f, np.int32), i=REMESH_ITERATIONS,
+                                          h=edge, feature=fixed, project=True)
+    except ValueError as exc:  # gpytoolbox refuses a non-manifold input
+        raise MeshError(f"isotropic remeshing failed ({exc}); set mesh.remesh=off or repair the mesh in a "
+                        "modelling tool") from None
+    out = trimesh.Trimesh(np.array(rv, np.float64), np.array(rf, np.int64), process=False)
+    kept = f", {len(fixed)} crease vertices kept" if len(fixed) else ""
+    repairs.append(f"remeshed isotropically: {len(mesh.faces)} -> {len(out.faces)} faces, target edge {edge:.4g} "
+                   f"mesh units (gpytoolbox remesh_botsch, {REMESH_ITERATIONS} iterations{kept})")
+    return out
+
+
+# ------------------------------------------------------------------------------------------ report
+def describe(mesh: trimesh.Trimesh) -> list[str]:
+    """Console lines of a loaded mesh's preparation: every repair, the remesh decision, the fidelity figures."""
+    prep = mesh.metadata.get("grt_prepare")
+    if not prep:
+        return [f"repaired input: {r}" for r in mesh.metadata.get("grt_repairs", [])]
+    lines = [f"mesh {prep['source']}: {prep['input']['faces']} -> {prep['output']['faces']} faces, "
+             f"{prep['output']['vertices']} vertices; {prep['remesh']['decision']}"]
+    lines += [f"  repaired: {r}" for r in prep["repairs"]]
+    fid, tol = prep["fidelity"], prep["tolerance"]
+    lines.append(f"  fidelity: volume ratio {fid['volume_ratio']:.4f}, Hausdorff {fid['hausdorff_mm']:.3f} mm, "
+                 f"Chamfer {fid['chamfer_mm']:.3f} mm ({'exact, surface unchanged' if prep['exact'] else 'measured'};"
+                 f" allowed: {tol['fidelity_mm']:g} mm, volume ±{tol['volume_tol']:.0%})")
+    return lines
+
+
+def prepare_report(spec: str | Path, scale: float = 1.0, **settings) -> dict:
+    """Prepare one object and return a flat row for a measurement table (``python -m grt.bench meshes``).
+
+    Args:
+        spec: a built-in object name or a mesh file path.
+        scale: meters per mesh unit (``object_scale``).
+        **settings: :class:`MeshSettings` fields; ``remesh`` defaults to ``"auto"`` here (the apps' setting).
+
+    Returns:
+        ``object, input_faces, prepared_faces, prepared_vertices, repairs (list), remesh (decision),
+        volume_ratio, hausdorff_mm, chamfer_mm, prepare_s`` and ``timings_s``; or ``object, error`` when
+        the mesh is refused (the one-line message).
+    """
+    from grt.geometry.mesh import load_mesh
+
+    settings.setdefault("remesh", "auto")
+    start = time.perf_counter()
+    try:
+        mesh = load_mesh(spec, scale=scale, settings=MeshSettings(**settings))
+    except MeshError as exc:
+        return {"object": str(spec), "error": str(exc), "prepare_s": round(time.perf_counter() - start, 3)}
+    prep = mesh.metadata["grt_prepare"]
+    return {"object": str(spec), "input_faces": prep["input"]["faces"], "prepared_faces": prep["output"]["faces"],
+            "prepared_vertices": prep["output"]["vertices"], "repairs": prep["repairs"],
+            "remesh": prep["remesh"]["decision"], **{k: prep["fidelity"][k] for k in
+                                                      ("volume_ratio", "hausdorff_mm", "chamfer_mm")},
+            "prepare_s": prep["timings_s"]["total"], "timings_s": prep["timings_s"]}
+
+
+def settings_record(settings: MeshSettings) -> dict:
+    return asdict(settings)
