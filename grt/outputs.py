@@ -190,6 +190,10 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": cfg.budget.tau,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
+        "mesh_preparation": deformer.mesh.metadata.get("grt_prepare"),  # repairs, remesh, fidelity (mm)
+        "deformer": deformer_summary(deformer),
+        "invalid_candidates": sum(1 for r in records if r["iteration"] >= 1 and r.get("valid") is False),
+        "self_intersecting": sum(1 for r in records if r["iteration"] >= 1 and r.get("self_intersections", 0) > 0),
     }
     if not result.s0 > 0:
         summary["note"] = (f"S0 = {score.fmt(result.s0, unit=True)}: the policy already fails on the nominal "
@@ -207,6 +211,16 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         plot_shapes(deformer.mesh, shapes, tmp, handles=handle_set.handles)
     write_text_atomic(run_dir / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
     return summary
+
+
+def deformer_summary(deformer) -> dict:
+    """The deformation model of a run, as ``summary.json`` records it."""
+    core = deformer.core
+    out = {"method": core.method, "lam": core.lam}
+    if core.method == "smooth":
+        out.update(radius=core.radius, radius_m=core.region_radius * deformer.meters_per_unit,
+                   released_anchors=core.released_anchors.tolist())
+    return out
 
 
 def _choice(cfg: DictConfig, group: str) -> str:

@@ -63,6 +63,10 @@ class RedTeamLoop:
             there (e.g. :func:`grt.scores.check_nominal_floor`).
         ci: interval method of each candidate's journaled ``ci95`` (the task's ``ci`` setting, see
             :func:`grt.metrics.score_interval`).
+        validity: ``(nominal, mesh) -> dict`` with at least ``valid`` (e.g.
+            :func:`grt.geometry.quality.candidate_validity`), stored in each record; a candidate that
+            is not valid (self-intersecting, folded) is not simulated: its score is NaN, so it is never
+            a CrashShape and the search sees it as the nominal object.
     """
 
     def __init__(self, deformer: ShapeDeformer, optimizer: Optimizer, evaluator: Evaluator, journal: Journal,
@@ -70,17 +74,19 @@ class RedTeamLoop:
                  complexity: Callable[[trimesh.Trimesh], float] | None = None,
                  on_candidate: Callable[[dict], None] | None = None,
                  on_iteration: Callable[[int, list[float]], None] | None = None, ci: str = "auto",
-                 on_nominal: Callable[[float], None] | None = None):
+                 on_nominal: Callable[[float], None] | None = None,
+                 validity: Callable[[trimesh.Trimesh, trimesh.Trimesh], dict] | None = None):
         self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
         self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
         self.tau, self.complexity, self.ci = tau, complexity, ci
         self.on_candidate, self.on_iteration, self.on_nominal = on_candidate, on_iteration, on_nominal
+        self.validity = validity
         self.evaluations = 0
 
     def run(self) -> RedTeamResult:
         """Evaluate the nominal object, then ``T`` iterations of Algorithm 1."""
         for rec in self.journal.records:
-            if [tr["seed"] for tr in rec["trials"]] != self.seeds:
+            if rec.get("valid", True) and [tr["seed"] for tr in rec["trials"]] != self.seeds:
                 self._mismatch(rec["iteration"], rec["candidate"], "its episode seeds differ (budget.trials "
                                "or budget.seed changed)")
         s0 = self._nominal_score()
@@ -95,8 +101,9 @@ class RedTeamLoop:
             thetas = self.optimizer.ask()  # mutate: floor(gamma M) handles per candidate (TOPDM)
             thetas = project_to_budget(thetas, self.tau, self.deformer.meters_per_unit)
             scores = [self._candidate_score(t, i, thetas[i]) for i in range(len(thetas))]
-            # A candidate the simulator could not score (all trials sim_error, NaN) is no CrashShape:
-            # the search sees it as the nominal object, so it is never an elite by accident.
+            # A candidate the simulator could not score (all trials sim_error, NaN) or an implausible one
+            # (self-intersecting, not simulated, NaN) is no CrashShape: the search sees it as the nominal
+            # object, so it is never an elite by accident.
             search = np.where(np.isfinite(scores), scores, s0)
             self.optimizer.tell(thetas, search)  # keep ceil(rho N) elites, replicate
             history.append([float(x) for x in scores])
@@ -132,14 +139,19 @@ class RedTeamLoop:
 
     def _evaluate(self, t: int, i: int, theta: np.ndarray, mesh: trimesh.Trimesh) -> dict:
         start = time.perf_counter()
-        result = self.evaluator.evaluate([mesh], self.seeds)[0]
-        self.evaluations += 1
-        trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode,
-                   **({"error": str(o.info["error"])[:500]} if o.info.get("error") else {})}
-                  for o in result.trials]
+        validity = self.validity(self.deformer.mesh, mesh) if self.validity else {}
+        if validity.get("valid", True) or t == 0:  # the nominal object is always scored
+            result = self.evaluator.evaluate([mesh], self.seeds)[0]
+            self.evaluations += 1
+            trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode,
+                       **({"error": str(o.info["error"])[:500]} if o.info.get("error") else {})}
+                      for o in result.trials]
+            score, ci95, outcomes = float(result.score), list(result.ci95(self.ci)), result.outcomes
+        else:
+            score, ci95, outcomes, trials = float("nan"), [float("nan")] * 2, {}, []
         rec = {
-            "iteration": t, "candidate": i, "score": float(result.score),
-            "ci95": list(result.ci95(self.ci)), "outcomes": result.outcomes,
+            "iteration": t, "candidate": i, "score": score, "ci95": ci95, "outcomes": outcomes,
+            **validity,
             "theta": np.asarray(theta).tolist(),
             "smoothness_m": float(smoothness_score(theta, self.deformer.meters_per_unit)),
             "entropy": float(self.complexity(mesh)) if self.complexity else None,

@@ -47,8 +47,11 @@ from grt.config import (  # also registers schemas and resolvers before composit
     validate,
 )
 from grt.errors import exit_on_user_error, find_user_error, run_cli
-from grt.geometry.deform import ShapeDeformer
+from grt.geometry.deform import ShapeDeformer, deformer_options
 from grt.geometry.mesh import check_object_size, load_mesh
+from grt.geometry.prepare import MeshSettings
+from grt.geometry.prepare import describe as describe_preparation
+from grt.geometry.quality import candidate_validity
 from grt.journal import Journal, JournalError
 from grt.outputs import print_summary, save_nominal, write_outputs, write_text_atomic
 from grt.redteam import RedTeamLoop, episode_seeds
@@ -86,14 +89,15 @@ def run(cfg: DictConfig) -> dict:
     run_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     scale = cfg.get("object_scale", 1.0)  # absent in runs from before the key: meters
-    mesh = load_mesh(cfg.object, scale=scale)
+    mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.get("mesh")))
     check_object_size(mesh)  # a mesh in millimetres: refused before any file
+    print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(_plain(cfg.task), instantiate(cfg.policy), mesh, scale)  # wrong plug/checkpoint: likewise
     save_run_config(cfg, run_dir)
     handle_set = _select_handles(cfg, mesh, run_dir)
     save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
-    deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, lam=cfg.deformer.lam,
-                             method=cfg.deformer.method)
+    deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, **deformer_options(cfg.deformer))
+    _announce_deformer(deformer)
     optimizer = instantiate(cfg.optimizer)(num_handles=len(handle_set.handles))
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     journal = Journal(run_dir / "journal.jsonl")
@@ -114,7 +118,8 @@ def run(cfg: DictConfig) -> dict:
             on_candidate=lambda rec: _progress(bar, rec, score),
             on_iteration=lambda t, scores: logger.log_iteration(t, {"best_score": optimizer.best_score,
                                                                     "mean_score": float(np.mean(scores))}),
-            ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))))
+            ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
+            validity=candidate_validity if cfg.deformer.get("validity", False) else None)
         result = loop.run()
         bar.close()
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
@@ -144,6 +149,20 @@ def _entropy(mesh) -> float:
     from grt.geometry.complexity import angular_deficit_entropy
 
     return angular_deficit_entropy(mesh)
+
+
+def _announce_deformer(deformer: ShapeDeformer) -> None:
+    """Say what the deformation model does to the selected anchors (the smooth method releases some)."""
+    core = deformer.core
+    if core.method != "smooth":
+        return
+    radius_mm = core.region_radius * deformer.meters_per_unit * 1000
+    log.info("deformer: smooth handles, each moves a region of radius %.3g of the diagonal (%.1f mm)",
+             core.radius, radius_mm)
+    if len(core.released_anchors):
+        log.info("deformer: released %d point anchors inside handle regions (they would pin dimples): %s; "
+                 "%d anchors hold the shape", len(core.released_anchors), core.released_anchors.tolist(),
+                 len(core.anchors))
 
 
 def _progress(bar: tqdm, rec: dict, score: ScoreSpec) -> None:

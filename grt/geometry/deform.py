@@ -22,6 +22,19 @@ once per mesh. Handle targets ``T_h = V0[h] + theta`` are then met by changing `
 
   (derivation: ``ΔJ = M⁻¹Bᵀ(BM⁻¹Bᵀ)⁻¹theta`` with ``B = K_h A⁻¹ Lᵀ Gᵀ M`` and ``Bᵀ = M G Y``).
 
+* ``method="smooth"`` — handles that move smooth regions, not single vertices (issue 12: a lone
+  displaced vertex is a singular source of the Poisson model and drags a tent-shaped spike). Each
+  handle ``h`` carries a smooth volumetric displacement field ``ψ_h(x) theta_h`` with
+  ``ψ_h(x) = (1 - (|x - x_h| / r)²)³`` for ``|x - x_h| < r`` (C², compact; ``r = radius`` x the
+  bounding-box diagonal). Euclidean, not geodesic: the two sides of a thin wall move together, so
+  walls keep their thickness instead of being pushed through each other. The field changes the
+  Jacobians, ``ΔJ = G u`` with ``u = Σ_h ψ_h theta_h``, and the anchored Poisson solve makes the
+  vertices: ``V = V0 + A⁻¹ L L Ψ theta`` (``LᵀGᵀM G = L L``), so ``W = A⁻¹ L L Ψ`` (V x H, H solves).
+  Where ``u`` vanishes at the anchors this reproduces ``u`` exactly; a *point* anchor inside a
+  handle's region would pin a dimple into the bump, so those are released (kept: anchors outside
+  every region, and every anchor with an anchor neighbour, i.e. the task's protected regions; at
+  least three, for Procrustes). The released anchors are listed in :attr:`released_anchors`.
+
 Anchors are soft (λ = 1 as APAP): with anchors at rest the rest field ``J0 = G V0`` reproduces ``V0``
 exactly, and a deformation moves them slightly; ``ShapeDeformer`` rigidly re-aligns every result on
 the anchors (Procrustes), as the paper does (lines 1068-1073).
@@ -40,7 +53,9 @@ from grt.geometry.mesh import UnitCubeFrame, align_to_anchors
 from grt.geometry.operators import gradient_operator, laplacian, mass_matrix, selector_matrix
 from grt.geometry.solver import SparseCholesky
 
-METHODS = ("exact", "apap")
+METHODS = ("smooth", "exact", "apap")
+DEFAULT_RADIUS = 0.35  # smooth method: handle region radius, fraction of the bounding-box diagonal
+MIN_ANCHORS = 3
 
 
 @dataclass(frozen=True)
@@ -95,20 +110,27 @@ class JacobianFieldDeformer:
         handles: ``(H,)`` handle vertex indices.
         anchors: ``(A,)`` anchor vertex indices (at least one per connected component).
         lam: anchor weight λ (APAP: 1.0).
-        method: ``"exact"`` (default) or ``"apap"``.
+        method: ``"exact"`` (default), ``"smooth"`` or ``"apap"``.
         adam: optimizer settings of the ``"apap"`` method.
+        radius: ``"smooth"`` method: each handle's region radius, a fraction of the bounding-box
+            diagonal of ``vertices``.
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, handles, anchors, lam: float = 1.0,
-                 method: str = "exact", adam: AdamConfig | None = None):
+                 method: str = "exact", adam: AdamConfig | None = None, radius: float = DEFAULT_RADIUS):
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; use one of {METHODS}")
         if not lam > 0:
             raise ValueError(f"lam must be > 0 (anchor weight), got {lam}")
+        if not (isinstance(radius, (int, float)) and 0 < radius <= 1):
+            raise ValueError(f"radius must be in (0, 1] (a fraction of the bounding-box diagonal), got {radius!r}")
         self.v0 = np.asarray(vertices, np.float64)
         self.faces = np.asarray(faces, np.int64)
         self.handles, self.anchors = check_indices(handles, anchors, len(self.v0))
-        self.lam, self.method, self.adam = float(lam), method, adam or AdamConfig()
+        self.lam, self.method, self.adam, self.radius = float(lam), method, adam or AdamConfig(), float(radius)
+        self.released_anchors = np.empty(0, np.int64)
+        if method == "smooth":
+            self.anchors, self.released_anchors = self._release_point_anchors()
         self._check_components()
         self.G = gradient_operator(self.v0, self.faces)
         self.M = mass_matrix(self.v0, self.faces)
@@ -119,7 +141,7 @@ class JacobianFieldDeformer:
         # The anchors' fixed targets (their rest positions) enter every right-hand side.
         self._anchor_rhs = self.lam * (self.Ka.T @ self.v0[self.anchors])  # (V, 3)
         self._LtGtM = (self.L.T @ self.G.T @ self.M).tocsr()  # (V, 3F)
-        self._W = self._exact_basis() if method == "exact" else None
+        self._W = {"exact": self._exact_basis, "smooth": self._smooth_basis}.get(method, lambda: None)()
         self._R: np.ndarray | None = None
         self._c: np.ndarray | None = None
 
@@ -150,6 +172,34 @@ class JacobianFieldDeformer:
             raise ValueError(f"{len(missing)} of the mesh's {n} connected components have no anchor; the "
                              "Poisson system is singular there. Add an anchor on every component.")
 
+    # ----------------------------------------------------------------------------- smooth mode
+    @property
+    def region_radius(self) -> float:
+        """Handle region radius in the units of ``vertices``."""
+        return self.radius * float(np.linalg.norm(np.ptp(self.v0, axis=0)))
+
+    def region_weights(self) -> np.ndarray:
+        """``Ψ`` ``(V, H)``: each handle's smooth falloff ``(1 - (d / r)²)³`` over Euclidean distance."""
+        d2 = ((self.v0[:, None, :] - self.v0[self.handles][None]) ** 2).sum(-1) / self.region_radius**2
+        return np.clip(1.0 - d2, 0.0, None) ** 3
+
+    def _release_point_anchors(self) -> tuple[np.ndarray, np.ndarray]:
+        """Anchors kept and released by the smooth method (see the module docstring)."""
+        e = self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        adj = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(self.v0),) * 2).tocsr()
+        is_anchor = np.zeros(len(self.v0), bool)
+        is_anchor[self.anchors] = True
+        has_anchor_neighbour = (adj[self.anchors] @ is_anchor.astype(float)) > 0
+        dist = np.linalg.norm(self.v0[self.anchors][:, None] - self.v0[self.handles][None], axis=2).min(1)
+        release = (dist < self.region_radius) & ~has_anchor_neighbour
+        if (~release).sum() < MIN_ANCHORS:  # keep back the farthest released ones for Procrustes
+            order = np.flatnonzero(release)[np.argsort(-dist[release])]
+            release[order[: MIN_ANCHORS - int((~release).sum())]] = False
+        return self.anchors[~release], self.anchors[release]
+
+    def _smooth_basis(self) -> np.ndarray:
+        return self.solver.solve(self.L @ (self.L @ self.region_weights()))
+
     # ------------------------------------------------------------------------------ exact mode
     def _exact_basis(self) -> np.ndarray:
         Kh_t = np.zeros((len(self.v0), self.num_handles))
@@ -167,9 +217,9 @@ class JacobianFieldDeformer:
 
     @property
     def basis(self) -> np.ndarray:
-        """``W`` ``(V, H)`` of the exact method: ``V(theta) = V0 + W @ theta``."""
+        """``W`` ``(V, H)`` of the exact and smooth methods: ``V(theta) = V0 + W @ theta``."""
         if self._W is None:
-            self._W = self._exact_basis()
+            self._W = self._smooth_basis() if self.method == "smooth" else self._exact_basis()
         return self._W
 
     # ------------------------------------------------------------------------------- interface
@@ -190,7 +240,7 @@ class JacobianFieldDeformer:
             raise ValueError(f"thetas must have shape (N, {self.num_handles}, 3), got {thetas.shape}")
         if not np.all(np.isfinite(thetas)):
             raise ValueError("thetas contain NaN or inf")
-        out = self._exact(thetas) if self.method == "exact" else self._apap(thetas)
+        out = self._apap(thetas) if self.method == "apap" else self._exact(thetas)
         return out[0] if single else out
 
     def _exact(self, thetas: np.ndarray) -> np.ndarray:
@@ -235,6 +285,13 @@ class JacobianFieldDeformer:
         return self.solve_vertices(J)
 
 
+def deformer_options(cfg) -> dict:
+    """``ShapeDeformer`` keyword arguments from a run's ``deformer`` config block (any mapping with
+    ``get``); keys a run from before them lacks take the values that run was made with."""
+    return {"lam": float(cfg.get("lam", 1.0)), "method": str(cfg.get("method", "exact")),
+            "radius": float(cfg.get("radius", DEFAULT_RADIUS))}
+
+
 class ShapeDeformer:
     """Deform a metric mesh: unit-cube normalization, Jacobian-field solve, rescale, Procrustes.
 
@@ -244,18 +301,18 @@ class ShapeDeformer:
 
     Args:
         mesh: nominal mesh in meters (validated, see :func:`grt.geometry.mesh.load_mesh`).
-        handles, anchors, lam, method, adam: as :class:`JacobianFieldDeformer`.
+        handles, anchors, lam, method, adam, radius: as :class:`JacobianFieldDeformer`.
         align: Procrustes-align results on the anchors (needs >= 3 anchors; with fewer, only the
             anchors' centroid is matched).
     """
 
     def __init__(self, mesh: trimesh.Trimesh, handles, anchors, lam: float = 1.0, method: str = "exact",
-                 adam: AdamConfig | None = None, align: bool = True):
+                 adam: AdamConfig | None = None, align: bool = True, radius: float = DEFAULT_RADIUS):
         self.mesh = mesh
         self.faces = np.asarray(mesh.faces)
         self.frame = UnitCubeFrame.fit(np.asarray(mesh.vertices))
         self.v0_unit = self.frame.to_unit(np.asarray(mesh.vertices, np.float64))
-        self.core = JacobianFieldDeformer(self.v0_unit, self.faces, handles, anchors, lam, method, adam)
+        self.core = JacobianFieldDeformer(self.v0_unit, self.faces, handles, anchors, lam, method, adam, radius)
         self.align = align
 
     @property
@@ -264,7 +321,12 @@ class ShapeDeformer:
 
     @property
     def anchors(self) -> np.ndarray:
+        """The anchors the solve holds (the smooth method may have released some)."""
         return self.core.anchors
+
+    @property
+    def released_anchors(self) -> np.ndarray:
+        return self.core.released_anchors
 
     @property
     def meters_per_unit(self) -> float:

@@ -137,6 +137,7 @@ def candidates(run_dir: Path) -> list[dict]:
 
 def run_summary(run_dir: Path) -> dict:
     summary = json.loads((run_dir / "summary.json").read_text())
+    (summary.get("mesh_preparation") or {}).pop("timings_s", None)  # seconds of this session, like wall_s
     return {k: v for k, v in summary.items() if k not in SESSION_FIELDS}
 
 
