@@ -11,17 +11,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 
 import trimesh
 
+from grt.bench.meshes import REAL, REAL_SCALES
 from grt.geometry.mesh import prepare_mesh
 from grt.geometry.prepare import MeshSettings, prepare_report
 
-REAL = Path(__file__).resolve().parents[1] / "tests" / "data" / "real"
-# file -> meters per file unit (the pybullet URDF's scale; see tests/data/real/README.md)
-REAL_SCALES = {"duck.obj": 0.05, "teddy_vhacd_hulls.obj": 0.1, "mug_open.obj": 1.0, "toy_cylinder.obj": 1.0,
-               "shape_sorter.obj": 0.25, "random_000.obj": 0.015, "random_009.obj": 0.015}
 BUILTINS = ("mug", "plug", "bottle")
 
 

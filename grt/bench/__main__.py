@@ -11,7 +11,7 @@ import sys
 
 from grt.errors import exit_on_user_error
 
-BENCHMARKS = ("deform", "grasp", "insertion", "drawer")
+BENCHMARKS = ("deform", "grasp", "insertion", "drawer", "meshes")
 USAGE = f"usage: python -m grt.bench {{{','.join(BENCHMARKS)}}} [options]  (--help for each)"
 
 
