@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from grt.geometry.quality import nominal_crossings
+
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
 
 
@@ -263,11 +265,12 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
                                                                   solid.reference_volume)
     t3 = time.perf_counter()
     _check_fidelity(figures, settings, repairs, out, mm_per_unit)
+    crossings = len(nominal_crossings(out))
     out.metadata["grt_repairs"] = repairs
     out.metadata["grt_prepare"] = {
         "source": "mesh", "builtin": builtin, "settings": asdict(settings),
         "input": {"vertices": len(mesh.vertices), "faces": len(mesh.faces), "problems": problems},
-        "output": {"vertices": len(out.vertices), "faces": len(out.faces)},
+        "output": {"vertices": len(out.vertices), "faces": len(out.faces), "self_intersections": crossings},
         "repairs": repairs, "exact": exact,
         "remesh": {"done": remeshed, "decision": decision, "edge_length_mm": round(edge * mm_per_unit, 4)},
         "fidelity": figures, "tolerance": {"fidelity_mm": settings.fidelity_mm, "volume_tol": settings.volume_tol},

@@ -369,6 +369,10 @@ def describe(mesh: trimesh.Trimesh) -> list[str]:
     lines.append(f"  fidelity: volume ratio {fid['volume_ratio']:.4f}, Hausdorff {fid['hausdorff_mm']:.3f} mm, "
                  f"Chamfer {fid['chamfer_mm']:.3f} mm ({'exact, surface unchanged' if prep['exact'] else 'measured'};"
                  f" allowed: {tol['fidelity_mm']:g} mm, volume ±{tol['volume_tol']:.0%})")
+    if prep["output"].get("self_intersections"):
+        lines.append(f"  warning: the surface crosses itself in {prep['output']['self_intersections']} face pairs "
+                     "(kept as given; a candidate is judged by the crossings it adds). Fix the input in a "
+                     "modelling tool for a printable object")
     return lines
 
 

@@ -106,6 +106,11 @@ def self_intersections(vertices: np.ndarray, faces: np.ndarray) -> int:
         The count (0 for an embedded surface). Touching in exactly one point may or may not count;
         coplanar overlaps are not counted (they do not arise from a smooth deformation).
     """
+    return len(crossing_pairs(vertices, faces))
+
+
+def crossing_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(K, 2)`` face index pairs ``(a < b)`` that share no vertex and cross (see :func:`self_intersections`)."""
     vertices, faces = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     tris = vertices[faces]
     pairs = _candidate_pairs(tris)
@@ -113,14 +118,21 @@ def self_intersections(vertices: np.ndarray, faces: np.ndarray) -> int:
     shared = (fa[:, :, None] == fb[:, None, :]).any((1, 2))
     pairs = pairs[~shared]
     if len(pairs) == 0:
-        return 0
+        return np.empty((0, 2), np.int64)
     ta, tb = tris[pairs[:, 0]], tris[pairs[:, 1]]
     eps = 1e-12 * float(np.ptp(vertices, axis=0).max()) ** 2
     hit = np.zeros(len(pairs), bool)
     for x, y in ((ta, tb), (tb, ta)):
         for i in range(3):
             hit |= _segments_cross(x[:, i], x[:, (i + 1) % 3], y, eps)
-    return int(hit.sum())
+    return np.sort(pairs[hit], axis=1)
+
+
+def nominal_crossings(nominal: trimesh.Trimesh) -> np.ndarray:
+    """The nominal mesh's own crossing pairs (a real input may already cross itself), computed once."""
+    if "grt_crossing_pairs" not in nominal.metadata:
+        nominal.metadata["grt_crossing_pairs"] = crossing_pairs(nominal.vertices, nominal.faces)
+    return nominal.metadata["grt_crossing_pairs"]
 
 
 def inverted_faces(nominal: trimesh.Trimesh, vertices: np.ndarray) -> int:
@@ -136,8 +148,11 @@ def candidate_validity(nominal: trimesh.Trimesh, mesh: trimesh.Trimesh) -> dict:
     Returns:
         ``{"self_intersections": int, "inverted_faces": int, "watertight": bool,
         "winding_consistent": bool, "valid": bool}``; ``valid`` needs all four to be good.
+        ``self_intersections`` counts the crossing face pairs the deformation *added*: a crossing the
+        nominal mesh already has (reported when it was loaded) is the input's, not the candidate's.
     """
-    si = self_intersections(mesh.vertices, mesh.faces)
+    own = {tuple(p) for p in nominal_crossings(nominal).tolist()}
+    si = sum(tuple(p) not in own for p in crossing_pairs(mesh.vertices, mesh.faces).tolist())
     inv = inverted_faces(nominal, mesh.vertices)
     watertight = bool(mesh.is_watertight)
     winding = bool(mesh.is_winding_consistent)

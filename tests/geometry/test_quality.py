@@ -32,6 +32,23 @@ def test_overlapping_bodies_and_a_crushed_wall_are_found():
     assert candidate_validity(mug, mug)["valid"]
 
 
+def test_a_candidate_is_judged_by_the_crossings_it_adds_not_the_inputs_own():
+    from pathlib import Path
+
+    from grt.geometry.mesh import load_mesh
+    from grt.geometry.prepare import MeshSettings, describe
+
+    # pybullet's duck crosses itself in 2 face pairs as shipped: reported when loaded, not the candidate's
+    duck = load_mesh(Path(__file__).parents[1] / "data/real/duck.obj", scale=0.05, settings=MeshSettings(remesh="auto"))
+    assert duck.metadata["grt_prepare"]["output"]["self_intersections"] == 2
+    assert any("crosses itself in 2 face pairs" in line for line in describe(duck))
+    assert candidate_validity(duck, duck.copy())["valid"]
+    v = duck.vertices.copy()
+    top = v[:, 2] > np.median(v[:, 2])
+    v[top, 2] -= 0.6 * np.ptp(v[:, 2])  # the top pushed down through the bottom: new crossings
+    assert candidate_validity(duck, trimesh.Trimesh(v, duck.faces, process=False))["self_intersections"] > 0
+
+
 def test_a_fold_is_an_inverted_face():
     box = trimesh.creation.box()
     v = box.vertices.copy()
