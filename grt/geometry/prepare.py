@@ -351,9 +351,58 @@ def remesh(mesh: trimesh.Trimesh, edge: float, repairs: list[str]) -> trimesh.Tr
                         "modelling tool") from None
     out = trimesh.Trimesh(np.array(rv, np.float64), np.array(rf, np.int64), process=False)
     kept = f", {len(fixed)} crease vertices kept" if len(fixed) else ""
+    out = fix_flat_faces(out)
+    flipped = out.metadata.pop("grt_flat_faces_fixed")
+    flips = f"; {flipped} zero-area faces between kept crease vertices collapsed or flipped" if flipped else ""
     repairs.append(f"remeshed isotropically: {len(mesh.faces)} -> {len(out.faces)} faces, target edge {edge:.4g} "
-                   f"mesh units (gpytoolbox remesh_botsch, {REMESH_ITERATIONS} iterations{kept})")
+                   f"mesh units (gpytoolbox remesh_botsch, {REMESH_ITERATIONS} iterations{kept}{flips})")
     return out
+
+
+def fix_flat_faces(mesh: trimesh.Trimesh, max_flips: int = 100) -> trimesh.Trimesh:
+    """Remove zero-area faces that remeshing left between crease vertices it had to keep; returns the mesh.
+
+    A *needle* (two of its vertices at the same place, e.g. two crease vertices of a boolean union 1e-9
+    apart) is collapsed: the coincident vertices are merged and the faces left with a repeated vertex
+    dropped. A *cap* ``(a, b, c)`` with ``c`` on its longest edge ``ab`` is flipped with its neighbour
+    ``(b, a, d)`` into ``(c, a, d)`` and ``(c, d, b)``: the same surface, orientation kept. The count of
+    both is in ``mesh.metadata["grt_flat_faces_fixed"]``.
+    """
+    def flat(m):
+        return np.flatnonzero(~m.nondegenerate_faces(height=1e-12))
+
+    fixed = 0
+    if len(flat(mesh)):
+        v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        tol = 1e-7 * float(np.ptp(v, axis=0).max())
+        _, first, inverse = np.unique(np.round(v / tol).astype(np.int64), axis=0, return_index=True,
+                                      return_inverse=True)
+        f = first[inverse.ravel()][f]
+        keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+        if not keep.all():
+            fixed += int((~keep).sum())
+            mesh = trimesh.Trimesh(v, f[keep], process=False)
+            mesh.remove_unreferenced_vertices()
+    faces = np.array(mesh.faces)
+    for _ in range(max_flips):
+        bad = flat(trimesh.Trimesh(mesh.vertices, faces, process=False))
+        if len(bad) == 0:
+            break
+        i = bad[0]
+        tri = mesh.vertices[faces[i]]
+        k = int(np.argmax([np.linalg.norm(tri[(k + 1) % 3] - tri[k]) for k in range(3)]))
+        a, b, c = faces[i, k], faces[i, (k + 1) % 3], faces[i, (k + 2) % 3]
+        nb = np.flatnonzero(((faces == b) & (np.roll(faces, -1, axis=1) == a)).any(1))
+        if len(nb) != 1:
+            break
+        d = int(faces[nb[0]][~np.isin(faces[nb[0]], (a, b))][0])
+        if d == c:
+            break
+        faces[i], faces[nb[0]] = (c, a, d), (c, d, b)
+        fixed += 1
+    mesh = trimesh.Trimesh(mesh.vertices, faces, process=False) if fixed else mesh
+    mesh.metadata["grt_flat_faces_fixed"] = fixed
+    return mesh
 
 
 # ------------------------------------------------------------------------------------------ report
