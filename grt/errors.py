@@ -34,12 +34,14 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from grt.geometry.mesh import MeshError
     from grt.journal import JournalError
     from grt.objects import UnknownObjectError
+    from grt.policies.cgn_net import CGNWeightsError
     from grt.policies.rsl_rl import CheckpointError
     from grt.scores import NominalFloorError, ScoreConfigError
     from grt.selectors.client import VLMError
     from grt.tasks.base import TaskInputError
 
     return (MeshError, UnknownObjectError, JournalError, VLMError, CollisionError, CheckpointError, TaskInputError,
+            CGNWeightsError,
             BlueTeamError, ScoreConfigError, NominalFloorError, ConfigError, OutputError)
 
 

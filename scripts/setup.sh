@@ -78,7 +78,11 @@ if [ ! -x "$VENV/bin/python" ]; then
   log "creating $VENV"
   $PY -m venv "$VENV" || die "could not create a venv: on Debian/Ubuntu 'apt-get install python3-venv'"
 fi
-HASH=$( (cat pyproject.toml; echo "$TORCH_SPEC") | sha256sum | cut -c1-16)
+# Contact-GraspNet's pretrained weights come in the cgn-pytorch wheel (20 MB, MIT). The wheel pins
+# years-old exact numpy/torch/scipy/trimesh and imports meshcat: GRT reads only its weights file and runs
+# its own implementation of the network (grt/policies/cgn_net.py), so it is installed without deps.
+CGN_SPEC="cgn-pytorch==0.4.3"
+HASH=$( (cat pyproject.toml; echo "$TORCH_SPEC $CGN_SPEC") | sha256sum | cut -c1-16)
 if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$HASH" ]; then
   log "Python packages up to date ($VENV)"
 else
@@ -87,6 +91,7 @@ else
   # torch first and pinned: an unpinned torch (pulled by a dependency) fetches GBs of CUDA wheels.
   "$VENV/bin/python" -m pip install -q "$TORCH_SPEC"
   "$VENV/bin/python" -m pip install -q -e ".[dev]"
+  "$VENV/bin/python" -m pip install -q --no-deps "$CGN_SPEC"
   echo "$HASH" > "$STAMP"
 fi
 log "done: $("$VENV/bin/python" -c 'import torch, grt; print("torch", torch.__version__, "| grt", grt.__version__)')"

@@ -96,6 +96,11 @@ def _run_job(session, job: Job, conn: Connection) -> None:
     mesh = trimesh.Trimesh(job.vertices, job.faces, process=False, metadata=dict(job.metadata))
     start = time.perf_counter()  # the first trial's time includes loading the object
     load_error = _load(session, mesh, job.parts)
+    if load_error is None and hasattr(session, "prefetch"):
+        try:  # batched planning (a grasp network over several trials' clouds at once)
+            session.prefetch(job.seeds)
+        except Exception as exc:
+            load_error = f"prefetch failed: {type(exc).__name__}: {exc}"
     conn.send(("loaded", job.job_id))
     for seed in job.seeds:
         if load_error is not None:

@@ -119,13 +119,15 @@ def approach_frames(closing: np.ndarray, num_approaches: int, max_angle: float
 
 
 def hand_clearance(points: np.ndarray, rot: np.ndarray, tcp: np.ndarray, hand: HandGeometry,
-                   table_z: float, margin: float) -> np.ndarray:
+                   table_z: float, margin: float, pad_points: np.ndarray | None = None) -> np.ndarray:
     """Which hand poses hold no cloud point in their boxes, stay above the table and touch with both pads.
 
     Args:
         points: ``(P, 3)`` cloud (m).
         rot: ``(N, 3, 3)`` TCP rotations; tcp: ``(N, 3)`` TCP positions (m).
         hand: hand geometry; table_z: table height (m); margin: clearance (m) added to every box.
+        pad_points: the points the pads must touch (default: ``points``), e.g. the object's alone when
+            ``points`` also holds the table.
 
     Returns:
         ``(N,)`` bool mask of the valid poses.
@@ -139,6 +141,9 @@ def hand_clearance(points: np.ndarray, rot: np.ndarray, tcp: np.ndarray, hand: H
     in_palm = ((x < hand.palm_half_x + margin) & (np.abs(y) < hand.palm_half_y + margin)
                & (z > hand.palm_z[0]) & (z < hand.palm_z[1] + margin))
     free = ~(in_finger | in_palm).any(axis=1)
+    if pad_points is not None:
+        local = np.matmul(pad_points[None], rot) - np.einsum("ni,nij->nj", tcp, rot)[:, None]
+        x, y, z = np.abs(local[..., 0]), local[..., 1], local[..., 2]
     in_pad = (x < hand.pad_half_x) & (z > hand.pad_z[0]) & (z < hand.pad_z[1]) & (np.abs(y) < half)
     both_pads = (in_pad & (y > 0)).any(axis=1) & (in_pad & (y < 0)).any(axis=1)
     corners = np.array([[sx * hand.palm_half_x, sy * (half + hand.finger_depth_y), hand.finger_z[1]]

@@ -59,11 +59,14 @@ class GraspObservation:
         points: ``(P, 3)`` segmented object points, world frame (m).
         viewpoints: ``(P, 3)`` position (m) of the camera that saw each point (orients normals).
         table_z: height (m) of the table top.
+        context: ``(Q, 3)`` points (m, world) of the table top around the object, for planners that
+            ask for them (``context_radius > 0``); ``None`` otherwise.
     """
 
     points: np.ndarray
     viewpoints: np.ndarray
     table_z: float = 0.0
+    context: np.ndarray | None = None
 
 
 class Policy(ABC):

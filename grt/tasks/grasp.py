@@ -74,6 +74,7 @@ class GraspSession(TaskSession):
         self.steps = dict(zip(names, (int(s) for s in steps), strict=True))
         self.max_policy_steps = int(max_policy_steps)
         self._sim_steps, self._sim_s = 0, 0.0
+        self._planned: dict[int, tuple] = {}  # seed -> (grasps, capture_s, num_points, plan_s)
         self.env = gym.make(env_id, obs_mode="none", control_mode="pd_joint_pos", sim_backend="physx_cpu",
                             render_backend="cpu", num_cameras=num_cameras, camera_width=camera_width,
                             camera_height=camera_height, xy_range=xy_range, yaw_range=yaw_range,
@@ -91,6 +92,7 @@ class GraspSession(TaskSession):
         return self.env.unwrapped
 
     def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
+        self._planned.clear()
         self.unwrapped.set_object(mesh, parts)
         self.env.reset(seed=0, options=dict(reconfigure=True))
         self.ik = PandaIK(self.unwrapped.agent.robot)
@@ -132,14 +134,19 @@ class GraspSession(TaskSession):
         self._move(self._target, self.steps["settle"])
         self._check_health()
         self._rest_z = self._object_pose()[2]
-        t = time.perf_counter()
-        points, views = env.capture_object_cloud()
-        info["capture_s"], info["num_points"] = time.perf_counter() - t, len(points)
-        if isinstance(self.policy, ClosedLoopPolicy):
-            return self._closed_loop(seed, points, views, info)
-        t = time.perf_counter()
-        grasps = self.policy.plan(GraspObservation(points, views, table_z=0.0), seed)
-        info["plan_s"], info["num_grasps"] = time.perf_counter() - t, len(grasps)
+        if seed in self._planned:  # planned ahead in a batch (prefetch): the same cloud, the same grasps
+            grasps, info["capture_s"], info["num_points"], info["plan_s"] = self._planned.pop(seed)
+            info["batched"] = True
+        else:
+            t = time.perf_counter()
+            obs = self._observe()
+            info["capture_s"], info["num_points"] = time.perf_counter() - t, len(obs.points)
+            if isinstance(self.policy, ClosedLoopPolicy):
+                return self._closed_loop(seed, obs.points, obs.viewpoints, info)
+            t = time.perf_counter()
+            grasps = self.policy.plan(obs, seed)
+            info["plan_s"] = time.perf_counter() - t
+        info["num_grasps"] = len(grasps)
         if not grasps:
             return "no_grasp_found"
         plan = self._reachable_plan(grasps, info)
@@ -150,6 +157,41 @@ class GraspSession(TaskSession):
         self._move(q_pre, self.steps["pregrasp"])
         self._move(q_grasp, self.steps["approach"])
         return self._close_lift_shake(grasp_pose, info)
+
+    def _observe(self) -> GraspObservation:
+        """Render the cameras: the object's cloud (and the table around it if the policy asks)."""
+        radius = float(getattr(self.policy, "context_radius", 0.0) or 0.0)
+        if radius > 0:
+            points, views, context = self.unwrapped.capture_scene_cloud(radius)
+            return GraspObservation(points, views, table_z=0.0, context=context)
+        points, views = self.unwrapped.capture_object_cloud()
+        return GraspObservation(points, views, table_z=0.0)
+
+    def prefetch(self, seeds) -> None:
+        """Plan the grasps of the coming trials in batches, for a policy with ``plan_batch``.
+
+        Each trial's scene is rebuilt from its seed and settled, as the trial itself will do (a trial
+        depends only on (object, seed)), its cloud captured; then one batched inference per
+        ``policy.batch_size`` trials. :meth:`run_trial` uses the stored grasps.
+        """
+        size = int(getattr(self.policy, "batch_size", 1) or 1)
+        if size <= 1 or not hasattr(self.policy, "plan_batch") or isinstance(self.policy, ClosedLoopPolicy):
+            return
+        seeds = [int(s) for s in seeds if int(s) not in self._planned]
+        for start in range(0, len(seeds), size):
+            chunk, observations, capture = seeds[start:start + size], [], []
+            for seed in chunk:
+                self.env.reset(seed=seed, options=dict(reconfigure=True))
+                self._target, self._gripper = self._qpos(), 1.0
+                self._move(self._target, self.steps["settle"])
+                t = time.perf_counter()
+                observations.append(self._observe())
+                capture.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            plans = self.policy.plan_batch(observations, chunk)
+            plan_s = (time.perf_counter() - t) / len(chunk)
+            for seed, obs, grasps, cap in zip(chunk, observations, plans, capture, strict=True):
+                self._planned[seed] = (grasps, cap, len(obs.points), plan_s)
 
     def _reachable_plan(self, grasps, info: dict):
         """(q_via, q_pregrasp, q_grasp, pose) of the best grasp whose motion has IK solutions, or None."""

@@ -142,6 +142,19 @@ class GraspEnv(BaseEnv):
         seg_id = int(self.obj.per_scene_id[0])
         return capture_segmented_cloud(self.scene, self._sensors, seg_id)
 
+    def capture_scene_cloud(self, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The object's points and viewpoints, plus the table-top points seen within ``radius`` (m,
+        horizontally) of the object's points' center: the scene a grasp network trained on cluttered
+        tables expects."""
+        seg_id = int(self.obj.per_scene_id[0])
+        table_id = int(self.table_scene.table.per_scene_id[0]) if hasattr(
+            self.table_scene.table.per_scene_id, "__getitem__") else int(self.table_scene.table.per_scene_id)
+        points, views, table = capture_segmented_cloud(self.scene, self._sensors, seg_id, (table_id,))
+        if len(points):
+            center = points[:, :2].mean(axis=0)
+            table = table[np.linalg.norm(table[:, :2] - center, axis=1) < radius]
+        return points, views, table
+
     def evaluate(self) -> dict:
         if not self.evaluate_every_step:
             return {}

@@ -146,28 +146,37 @@ def hemisphere_camera_configs(num: int, center: tuple[float, float, float], radi
     return configs
 
 
-def capture_segmented_cloud(scene, sensors: dict, segment_id: int) -> tuple[np.ndarray, np.ndarray]:
+def capture_segmented_cloud(scene, sensors: dict, segment_id: int, context_ids: tuple[int, ...] = ()
+                            ) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Render every camera once and fuse the pixels of one actor into a world-frame point cloud.
 
     Args:
         scene: the ManiSkill scene (its render state is updated first).
         sensors: ``uid -> Camera`` (ManiSkill sensors) to capture.
         segment_id: the actor's ``per_scene_id`` (its id in the segmentation image).
+        context_ids: ids of surrounding actors (e.g. the table) whose points are returned too.
 
     Returns:
         points: ``(P, 3)`` world-frame points (m) on the actor's visible surface.
         viewpoints: ``(P, 3)`` world position (m) of the camera that saw each point.
+        context: ``(Q, 3)`` world-frame points of the ``context_ids`` actors (only when some are given).
     """
     scene.update_render(update_sensors=True, update_human_render_cameras=False)
-    points, views = [], []
+    points, views, context = [], [], []
     for cam in sensors.values():
         cam.capture()
         obs = cam.get_obs(rgb=False, depth=False, position=True, segmentation=True)
         pos = np.asarray(obs["position"][0], np.float64).reshape(-1, 3) / 1000.0  # minimal shader: mm
         seg = np.asarray(obs["segmentation"][0]).reshape(-1)
-        keep = (seg == segment_id) & (pos[:, 2] < 0)  # OpenGL camera looks along -z
+        front = pos[:, 2] < 0  # OpenGL camera looks along -z
         model = np.asarray(cam.camera.get_model_matrix()[0], np.float64)  # cam2world (OpenGL)
+        keep = (seg == segment_id) & front
         world = pos[keep] @ model[:3, :3].T + model[:3, 3]
         points.append(world)
         views.append(np.broadcast_to(model[:3, 3], world.shape))
+        if context_ids:
+            near = np.isin(seg, context_ids) & front
+            context.append(pos[near] @ model[:3, :3].T + model[:3, 3])
+    if context_ids:
+        return np.concatenate(points), np.concatenate(views), np.concatenate(context)
     return np.concatenate(points), np.concatenate(views)
