@@ -9,7 +9,9 @@ Measures, in one run, on the nominal object and a few deformations of it:
 * the evaluator: trials per second with ``W`` worker processes (after start-up), its speed-up over
   trials run in this process, and the framework overhead: core-seconds (``W x wall``) not spent
   stepping the simulator (cameras, planning, IK, object loading, inter-process traffic) over
-  core-seconds spent stepping it.
+  core-seconds spent stepping it;
+* for a grasp network with batched inference (``policy=contact_graspnet``): seconds per inference one
+  cloud at a time and ``--batch`` clouds at once, on real captures.
 
 The last line printed is one JSON object with every figure.
 """
@@ -113,6 +115,38 @@ def bench_raw_sim(task: dict, policy: dict, mesh, parts, trials: int, hold_steps
             "inproc_trials_per_s": round(trials / inproc_s, 4)}
 
 
+def bench_inference(task: dict, policy: dict, mesh, parts, batch: int) -> dict:
+    """Seconds per inference of a batched grasp network (``plan_batch``): one cloud at a time vs
+    ``batch`` clouds together, on real captures of ``batch`` trials' scenes (threads as configured)."""
+    from hydra.utils import instantiate
+
+    policy_obj = instantiate(policy, _convert_="all")
+    if not hasattr(policy_obj, "plan_batch"):
+        return {}
+    session = instantiate(task["session"], policy=policy_obj, _convert_="all")
+    try:
+        session.load_object(mesh, parts)
+        observations, seeds = [], list(range(1, batch + 1))
+        for seed in seeds:
+            session.env.reset(seed=seed, options=dict(reconfigure=True))
+            session._target, session._gripper = session._qpos(), 1.0
+            session._move(session._target, session.steps["settle"])
+            observations.append(session._observe())
+    finally:
+        session.close()
+    policy_obj.plan(observations[0], 0)  # warm-up
+    start = time.perf_counter()
+    single = [policy_obj.plan(o, s) for o, s in zip(observations, seeds, strict=True)]
+    one_s = (time.perf_counter() - start) / batch
+    start = time.perf_counter()
+    policy_obj.plan_batch(observations, seeds)
+    batch_s = (time.perf_counter() - start) / batch
+    attempts = [g[0].info.get("attempt", 0) + 1 if g else policy_obj.max_retries for g in single]
+    return {"inference_s": round(one_s, 3), "inference_batched_s": round(batch_s, 3), "batch": batch,
+            "batch_speedup": round(one_s / batch_s, 3), "inferences_per_plan": round(float(np.mean(attempts)), 2),
+            "cloud_points": int(np.mean([len(o.points) for o in observations]))}
+
+
 def bench_pool(make, task: dict, policy: dict, nominal, candidates, trials: int, workers: int) -> dict:
     """Trials per second of the evaluator with ``workers`` processes, start-up excluded."""
     start = time.perf_counter()
@@ -147,6 +181,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--inproc-trials", type=int, default=2)
     parser.add_argument("--hold-steps", type=int, default=200)
     parser.add_argument("--skip-coacd", action="store_true", help="skip the uncached CoACD timing")
+    parser.add_argument("--batch", type=int, default=4,
+                        help="clouds per batched inference (policies with plan_batch, e.g. contact_graspnet)")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. task=grasp_2cam")
     args = parser.parse_args(argv)
 
@@ -166,6 +202,8 @@ def main(argv: list[str] | None = None) -> None:
     print(json.dumps(out), flush=True)
     out.update(bench_raw_sim(task, policy, candidates[0], fast.parts(candidates[0]), args.inproc_trials,
                              args.hold_steps))
+    print(json.dumps(out), flush=True)
+    out.update(bench_inference(task, policy, candidates[0], fast.parts(candidates[0]), args.batch))
     print(json.dumps(out), flush=True)
     out.update(bench_pool(instantiate(cfg.evaluator), task, policy, nominal, candidates[: args.candidates],
                           args.trials, args.workers))
