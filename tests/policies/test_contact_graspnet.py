@@ -157,3 +157,20 @@ def test_in_the_simulator_batched_planning_gives_the_same_trials_as_one_by_one()
         assert two.info.get("batched") and not one.info.get("batched")
         np.testing.assert_allclose(one.info["object_final"], two.info["object_final"], atol=1e-5)
     assert any(o.success for o in results[1]), [o.mode for o in results[1]]
+
+
+def test_grasps_on_a_wide_box_are_centered_between_the_fingers(policy):
+    box = trimesh.creation.box((0.066, 0.066, 0.12))
+    obs = scene_observation(box, seed=2)
+    grasps = policy.plan(obs, seed=3)
+    assert grasps, "a can-sized box is graspable across its 66 mm"
+    assert all(0.0 < g.width <= 0.076 for g in grasps)
+    # Face to face: the closing axis within 15 deg of a side's normal (the others pinch an edge or a corner).
+    across = [(g, axis) for g in grasps for axis in (0, 1) if abs(g.pose[axis, 1]) > np.cos(np.deg2rad(15))]
+    assert across
+    for g, axis in across:
+        # the fingers close symmetrically about the box: the TCP sits on its mid-plane, the width spans it
+        assert abs(g.pose[axis, 3]) < 0.006
+        assert g.width > 0.06
+    raw = ContactGraspNetPolicy(num_points=12000, recenter=False, max_retries=2).plan(obs, seed=3)
+    assert len(raw) < len(grasps)  # the predicted widths (~1 cm) put a finger inside the box
