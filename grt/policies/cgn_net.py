@@ -195,13 +195,16 @@ class KDTreeOrder:
             d += (qc[:, None, 2] - pv[None, :, 2]) ** 2
             cs = np.zeros((len(qc), len(pv) + 1), np.int32)
             for (out, valid), r in zip(outs, radii, strict=True):
-                np.cumsum(d < np.float32(r) * np.float32(r), axis=1, out=cs[:, 1:])
-                pos, ok = self._descend(qc, cs, k)
+                inball = d < np.float32(r) * np.float32(r)
+                np.cumsum(inball, axis=1, out=cs[:, 1:])
+                pos, ok = self._descend(qc, cs, np.nonzero(inball)[1], k)
                 out[s:s + chunk] = self.vind[pos]
                 valid[s:s + chunk] = ok
         return outs
 
-    def _descend(self, q: np.ndarray, cs: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _descend(self, q: np.ndarray, cs: np.ndarray, cols: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Walk each query's tree in nanoflann's order; ``cs`` counts its in-ball points along the tree order,
+        ``cols`` lists their tree positions (row after row)."""
         m = len(q)
         rows = np.arange(m)
         node = np.zeros(m, np.int64)
@@ -233,11 +236,9 @@ class KDTreeOrder:
         rep_q = np.repeat(qs, ln)
         offs = np.arange(ln.sum()) - np.repeat(np.cumsum(ln) - ln, ln)
         ranks = np.repeat(first_rank, ln) + offs
-        # Position p of the (rank+1)-th in-ball point of query r: the first p with cs[r, p + 1] == rank + 1,
-        # one searchsorted over all rows (each row's cumulative count is shifted above the previous row's).
-        width = cs.shape[1]
-        flat = (cs + (np.arange(m, dtype=np.int64) * (width + 1))[:, None]).ravel()
-        pos = np.searchsorted(flat, rep_q * (width + 1) + ranks + 1, side="left") - rep_q * width - 1
+        # The (rank+1)-th in-ball point of query r is entry rank of r's run in ``cols``.
+        row_start = np.concatenate([[0], np.cumsum(cs[:, -1].astype(np.int64))[:-1]])
+        pos = cols[row_start[rep_q] + ranks]
         out = np.zeros((m, k), np.int64)
         ok = np.zeros((m, k), bool)
         order = np.argsort(rep_q, kind="stable")
