@@ -39,7 +39,6 @@ input: the hand's base frame, z the approach, x the closing direction, the finge
 from __future__ import annotations
 
 import importlib.util
-import math
 from pathlib import Path
 
 import numpy as np
@@ -462,14 +461,3 @@ def grasp_frames(points: torch.Tensor, approach: torch.Tensor, closing: torch.Te
     pose[..., :3, 3] = points - gripper_depth * approach + 0.5 * width[..., None] * closing
     pose[..., 3, 3] = 1.0
     return pose
-
-
-def _check() -> None:  # pragma: no cover - a quick manual smoke run
-    net = ContactGraspNet.pretrained()
-    pos = torch.randn(1, 4096, 3) * 0.05
-    out = net(pos, [torch.Generator().manual_seed(0)])
-    print({k: tuple(v.shape) for k, v in out.items()}, math.isfinite(float(out["logits"].sum())))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    _check()

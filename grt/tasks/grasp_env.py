@@ -147,8 +147,7 @@ class GraspEnv(BaseEnv):
         horizontally) of the object's points' center: the scene a grasp network trained on cluttered
         tables expects."""
         seg_id = int(self.obj.per_scene_id[0])
-        table_id = int(self.table_scene.table.per_scene_id[0]) if hasattr(
-            self.table_scene.table.per_scene_id, "__getitem__") else int(self.table_scene.table.per_scene_id)
+        table_id = int(self.table_scene.table.per_scene_id[0])
         points, views, table = capture_segmented_cloud(self.scene, self._sensors, seg_id, (table_id,))
         if len(points):
             center = points[:, :2].mean(axis=0)
