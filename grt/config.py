@@ -66,6 +66,8 @@ class BudgetSchema:
         workers: simulator worker processes.
         tau: Smoothness-Score budget in meters (``None``: off).
         top_k: CrashShapes saved in the run folder.
+        confirm_trials: fresh episodes on which the nominal object and each CrashShape are scored again
+            after the search, with a paired test of each drop (:mod:`grt.confirm`); 0 turns it off.
     """
 
     population: int = _field(10, at_least(1), "candidates per iteration")
@@ -76,6 +78,8 @@ class BudgetSchema:
     workers: int = _field(2, at_least(1), "simulator worker processes")
     tau: float | None = _field(None, POSITIVE_OR_NULL, "Smoothness-Score budget in meters")
     top_k: int = _field(3, at_least(1), "CrashShapes saved in the run folder")
+    confirm_trials: int = _field(0, at_least(0), "fresh episodes re-scoring the nominal object and each "
+                                 "CrashShape after the search (0: off)")
 
 
 BUDGET_KEYS = tuple(f.name for f in fields(BudgetSchema))

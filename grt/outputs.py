@@ -164,8 +164,13 @@ def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
             entry.unlink()
 
 
-def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, evaluator, wall_s: float) -> dict:
-    """Compute the paper's metrics from the journal and write every artifact of the run."""
+def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, evaluator, wall_s: float,
+                  confirmation: dict | None = None) -> dict:
+    """Compute the paper's metrics from the journal and write every artifact of the run.
+
+    ``confirmation`` (:func:`grt.confirm.confirm`) adds ``confirm`` and ``confirmed_final_drop`` to the
+    summary and each CrashShape's fresh-episode score to ``shapes.png``.
+    """
     from grt.report.plots import plot_curve, plot_shapes
 
     _remove_except(run_dir, set(), re.compile(_TEMP))  # temporary files of a write a kill interrupted
@@ -195,6 +200,9 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "invalid_candidates": sum(1 for r in records if r["iteration"] >= 1 and r.get("valid") is False),
         "self_intersecting": sum(1 for r in records if r["iteration"] >= 1 and r.get("self_intersections", 0) > 0),
     }
+    if confirmation is not None:
+        summary["confirm"] = confirmation
+        summary["confirmed_final_drop"] = confirmation["confirmed_final_drop"]
     if not result.s0 > 0:
         summary["note"] = (f"S0 = {score.fmt(result.s0, unit=True)}: the policy already fails on the nominal "
                            "object; relative drops need a positive S0 and are undefined")
@@ -205,12 +213,21 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     title = f"{summary['task']} / {summary['object']} / {summary['selector']}-{summary['optimizer']}"
     with atomic_path(run_dir / "curve.png") as tmp:
         plot_curve(result.s0, result.iteration_scores, tmp, title=title, score=score)
-    shapes = [(m, f"it {r['iteration']}: {score.title} {score.fmt(r['score'], unit=True)}")
+    fresh = {(c["iteration"], c["candidate"]): c for c in (confirmation or {}).get("shapes", [])}
+    shapes = [(m, f"it {r['iteration']}: {score.title} {score.fmt(r['score'], unit=True)}"
+                  + _fresh_label(fresh.get((r["iteration"], r["candidate"])), score))
               for r, m in zip(best, meshes, strict=True)]
     with atomic_path(run_dir / "shapes.png") as tmp:
         plot_shapes(deformer.mesh, shapes, tmp, handles=handle_set.handles)
     write_text_atomic(run_dir / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
     return summary
+
+
+def _fresh_label(confirmed: dict | None, score: ScoreSpec) -> str:
+    """`` / fresh 0.41*``: a CrashShape's score on the confirmation episodes (``*``: a confirmed drop)."""
+    if confirmed is None:
+        return ""
+    return f" / fresh {score.fmt(confirmed['score'])}{'*' if confirmed['confirmed'] else ''}"
 
 
 def deformer_summary(deformer) -> dict:
@@ -252,5 +269,15 @@ def print_summary(summary: dict, run_dir: Path) -> None:
                   fmt(summary["wall_s"], "{:.0f}"))
     console = Console()
     console.print(table)
+    conf = summary.get("confirm")
+    if conf:
+        s0, shapes = conf["s0"], conf["shapes"]
+        lines = [f"rank {c['rank']}: {score.fmt(c['score'], unit=True)} (search {score.fmt(c['search_score'])}), "
+                 f"drop {fmt(c['drop'], '{:.1%}')}, p = {c['p_holm']:.3g} (Holm)"
+                 f"{' confirmed' if c['confirmed'] else ' not confirmed'}" for c in shapes]
+        console.print(f"confirmed on {conf['trials']} fresh episodes: S0 {score.fmt(s0, unit=True)}, "
+                      f"confirmed Final Drop (rank 1) {fmt(conf['confirmed_final_drop'], '{:.1%}')}, "
+                      f"{conf['confirmed']}/{len(shapes)} drops significant at {conf['alpha']}\n  "
+                      + "\n  ".join(lines))
     console.print(f"run folder: {run_dir}\n  curve: {run_dir / 'curve.png'}\n  shapes: {run_dir / 'shapes.png'}"
                   f"\n  CrashShapes: {run_dir / 'crashshapes'}")

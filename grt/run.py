@@ -64,12 +64,13 @@ log = logging.getLogger("grt.run")
 # Keys a resume may set (with what is under them): none changes the search (results are identical with any
 # number of workers; loggers, the collision cache and Hydra's own files only record; the nominal floor only
 # decides whether the run goes on after S0), so a resumed run stays the run its journal was written by.
-RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra", "task.nominal_floor")
+RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra", "task.nominal_floor",
+               "budget.confirm_trials")
 # The parts of a resumed run's config taken from the command; all the rest is the run's saved config.
 FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths",
-                "task.nominal_floor")
+                "task.nominal_floor", "budget.confirm_trials")
 # FROM_COMMAND keys set even where the run's saved config lacks them (a run from before the key existed).
-ADDED_KEYS = ("task.nominal_floor",)
+ADDED_KEYS = ("task.nominal_floor", "budget.confirm_trials")
 RUN_FOLDERS = "outputs/<task>/<object>/<selector>-<optimizer>/<time>"
 INTERRUPTED = 130  # the shell's code for a process ended by SIGINT
 _ABSENT = object()
@@ -122,8 +123,9 @@ def run(cfg: DictConfig) -> dict:
             validity=candidate_validity if cfg.deformer.get("validity", False) else None)
         result = loop.run()
         bar.close()
+        confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
-                                wall_s=time.perf_counter() - start)
+                                wall_s=time.perf_counter() - start, confirmation=confirmation)
         logger.log_summary(summary)
         logger.log_images({"curve": run_dir / "curve.png", "shapes": run_dir / "shapes.png"})
     finally:
@@ -132,6 +134,23 @@ def run(cfg: DictConfig) -> dict:
         logger.finish()
     print_summary(summary, run_dir)
     return summary
+
+
+def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, evaluator, seeds: list[int],
+             score: ScoreSpec) -> dict | None:
+    """Re-score the nominal object and the CrashShapes on fresh episodes (``budget.confirm_trials`` > 0)."""
+    from grt.confirm import confirm
+    from grt.outputs import crash_records
+
+    trials = int(cfg.budget.get("confirm_trials", 0) or 0)
+    best = crash_records(result.records, cfg.budget.top_k)
+    if trials == 0 or not best:
+        return None
+    meshes = deformer.meshes(np.asarray([r["theta"] for r in best]))
+    with tqdm(total=1 + len(best), desc=f"confirm ({trials} fresh episodes)", unit="shape",
+              dynamic_ncols=True) as bar:
+        return confirm(run_dir, best, meshes, deformer.mesh, evaluator, seeds, cfg.budget.seed, trials,
+                       ci=score.ci, on_evaluated=lambda: bar.update(1))
 
 
 def _select_handles(cfg: DictConfig, mesh, run_dir: Path) -> HandleSet:

@@ -1,7 +1,8 @@
 """``python -m grt.report PATH [--csv OUT.csv]``: the paper's columns for a run or a multirun folder.
 
 Reads only ``summary.json`` files (and ``error.txt`` of failed jobs): Final Drop (%), ΔComplexity,
-Iter@50%, AUC, per run, plus the mean over runs of each (selector, optimizer) method, the way the
+Iter@50%, AUC, per run (with the confirmed Final Drop of runs that confirmed their CrashShapes on fresh
+episodes, ``budget.confirm_trials``: the rank-1 drop and how many of the k drops are significant), plus the mean over runs of each (selector, optimizer) method, the way the
 paper aggregates objects into Tables 1 and 2. S0 and the best score are in the task's own score, named
 per run (``success rate``, ``mean opening (m)``); the other columns are relative to S0, unit-free.
 A mistake (no such folder, no or a broken ``summary.json``, a ``--csv`` path that cannot be written) is
@@ -22,7 +23,8 @@ from grt.errors import check_output_file, exit_on_user_error, write_output
 from grt.scores import ScoreSpec
 
 COLUMNS = ("task", "object", "policy", "selector", "optimizer", "tau", "score_name", "score_unit", "s0",
-           "best_score", "final_drop", "delta_complexity", "iter_at_50", "auc", "evaluations", "wall_s")
+           "best_score", "final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc",
+           "evaluations", "wall_s")
 REQUIRED = ("task", "object", "selector", "optimizer", "final_drop", "delta_complexity", "iter_at_50", "auc")
 
 
@@ -95,7 +97,7 @@ def aggregate(rows: list[dict]) -> list[dict]:
     out = []
     for (task, policy, label), rs in sorted(groups.items()):
         agg = {"task": task, "policy": policy, "method": label, "runs": len(rs)}
-        for k in ("final_drop", "delta_complexity", "iter_at_50", "auc"):
+        for k in ("final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc"):
             vals = [r[k] for r in rs if r.get(k) is not None and not (isinstance(r[k], float) and math.isnan(r[k]))]
             agg[k] = sum(vals) / len(vals) if vals else None
         out.append(agg)
@@ -104,22 +106,36 @@ def aggregate(rows: list[dict]) -> list[dict]:
 
 def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     """Per-run table, per-method table (the paper's columns) and the failed jobs."""
-    lines = ["| task | object | policy | method | score | S0 | best | Final Drop (%) ↑ | ΔComplexity ↓ "
-             "| Iter@50% ↓ | AUC ↑ |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    confirmed = any(r.get("confirm") for r in rows)
+    head, rule = ("| Confirmed drop (%) ", "---|") if confirmed else ("", "")
+    lines = [f"| task | object | policy | method | score | S0 | best | Final Drop (%) ↑ {head}| ΔComplexity ↓ "
+             f"| Iter@50% ↓ | AUC ↑ |", f"|---|---|---|---|---|---|---|---|{rule}---|---|---|"]
     for r in rows:
         lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | "
                      f"{ScoreSpec.from_summary(r).label} | {score_cell(r, 's0')} | {score_cell(r, 'best_score')} | "
-                     f"{_fmt(r['final_drop'], 'pct')} | {_fmt(r['delta_complexity'])} | "
+                     f"{_fmt(r['final_drop'], 'pct')} | {_confirm_cell(r) if confirmed else ''}"
+                     f"{_fmt(r['delta_complexity'])} | "
                      f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} |")
-    lines += ["", "Mean per method (* = 50% drop not reached; T reported):", "",
-              "| task | policy | method | runs | Final Drop (%) ↑ | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
-              "|---|---|---|---|---|---|---|---|"]
+    lines += ["", "Mean per method (* = 50% drop not reached; T reported"
+              + ("; confirmed drop: rank-1 CrashShape on fresh episodes, (n/k) drops significant" if confirmed else "")
+              + "):", "",
+              f"| task | policy | method | runs | Final Drop (%) ↑ {head}| ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
+              f"|---|---|---|---|---|{rule}---|---|---|"]
     for a in agg:
+        cell = f"{_fmt(a['confirmed_final_drop'], 'pct')} | " if confirmed else ""
         lines.append(f"| {a['task']} | {a['policy']} | {a['method']} | {a['runs']} | {_fmt(a['final_drop'], 'pct')} | "
-                     f"{_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | {_fmt(a['auc'])} |")
+                     f"{cell}{_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | {_fmt(a['auc'])} |")
     if failed:
         lines += ["", f"{len(failed)} failed job(s) (see error.txt):"] + [f"- {p}" for p in failed]
     return "\n".join(lines)
+
+
+def _confirm_cell(r: dict) -> str:
+    """``41.7 (2/3)``: the rank-1 drop on fresh episodes and how many of the k drops are significant."""
+    conf = r.get("confirm")
+    if not conf:
+        return "- | "
+    return f"{_fmt(conf['confirmed_final_drop'], 'pct')} ({conf['confirmed']}/{len(conf['shapes'])}) | "
 
 
 def main(argv: list[str] | None = None) -> None:

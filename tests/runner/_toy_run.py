@@ -3,6 +3,11 @@
 ``TOY`` are the overrides of such a run: the task's session class is the base :class:`TaskSession` (only its
 class-level checks run) and :class:`ToyEvaluator` scores a candidate by its volume. With the environment
 variable ``GRT_TEST_INTERRUPT_AT=n`` the n-th ``evaluate`` call raises ``KeyboardInterrupt``, as Ctrl-C would.
+
+Two other policies, for the confirmation tests (``+evaluator.coin=P``, ``+evaluator.bar_mm=B``): ``coin``, a
+policy blind to geometry whose every trial is a fresh coin flip (success with probability ``P``, seeded by
+the shape and the episode: any change of the shape re-draws it, as a learned grasp network does); ``bar_mm``,
+a policy that fails when the shape moved a vertex farther than ``B`` x (0.5 + a seeded uniform) mm.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ import os
 import numpy as np
 
 from grt.evaluators.base import CandidateResult, Evaluator
+from grt.geometry.mesh import mesh_hash
 from grt.tasks.base import TrialOutcome
 
 TOY = ["task.session._target_=grt.tasks.base.TaskSession",
@@ -21,9 +27,21 @@ TOY = ["task.session._target_=grt.tasks.base.TaskSession",
 class ToyEvaluator(Evaluator):
     """Trial ``seed`` succeeds when the candidate keeps more of the nominal volume than a seeded bar."""
 
-    def __init__(self, nominal, **_):
+    def __init__(self, nominal, coin: float | None = None, bar_mm: float | None = None, **_):
         self.volume = float(nominal.volume)
+        self.nominal = np.asarray(nominal.vertices)
+        self.coin, self.bar_mm = coin, bar_mm
         self.calls = 0
+
+    def _ok(self, mesh, seed: int) -> bool:
+        if self.coin is not None:
+            key = int(mesh_hash(mesh.vertices, mesh.faces)[:8], 16)
+            return bool(np.random.default_rng([key, seed]).random() < self.coin)
+        if self.bar_mm is not None:
+            moved_mm = 1000 * float(np.max(np.linalg.norm(np.asarray(mesh.vertices) - self.nominal, axis=1)))
+            return moved_mm < self.bar_mm * (0.5 + np.random.default_rng(seed).random())
+        kept = float(mesh.volume) / self.volume
+        return kept > 0.99 - 0.05 * np.random.default_rng(seed).random()
 
     def evaluate(self, meshes, seeds):
         self.calls += 1
@@ -31,9 +49,8 @@ class ToyEvaluator(Evaluator):
             raise KeyboardInterrupt
         out = []
         for mesh in meshes:
-            kept = float(mesh.volume) / self.volume
             trials = [TrialOutcome(s, float(ok), ok, "success" if ok else "missed")
-                      for s in seeds for ok in [kept > 0.99 - 0.05 * np.random.default_rng(s).random()]]
+                      for s in seeds for ok in [self._ok(mesh, s)]]
             out.append(CandidateResult.from_trials(trials, wall_s=0.0))
         return out
 

@@ -1,0 +1,160 @@
+"""Confirm a run's CrashShapes on episodes the search never saw (``budget.confirm_trials``).
+
+A search keeps the lowest of many noisy scores. With a policy whose outcome changes with any change of
+its input (a learned grasp network re-draws its grasp when the depth images change by a fraction of a
+millimetre), the lowest of 30 scores of 8 trials each is low by luck alone, whatever the geometry: the
+winner's curse. Confirmation re-scores the nominal object and each of the run's ``top_k`` CrashShapes on
+``confirm_trials`` fresh episode seeds (disjoint from the search's, shared among the shapes: common random
+numbers) and tests each CrashShape against the nominal object episode by episode: a one-sided paired
+sign-flip permutation test of the per-episode score differences (binary and continuous scores alike),
+Holm-corrected over the ``k`` shapes. The headline, ``confirmed_final_drop``, is the relative drop of the
+**rank-1** CrashShape on the fresh episodes: the search's own choice, not the best of ``k`` chosen again
+(which would re-introduce the selection it corrects).
+
+Every confirmation evaluation is journaled in ``confirm-<n>.jsonl`` (one file per trial count, the same
+crash-safe, checksummed journal as the search's), so a killed confirmation resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from grt.geometry.mesh import mesh_hash
+from grt.journal import Journal, JournalError
+from grt.metrics import score_interval
+
+ALPHA = 0.05
+PERMUTATIONS = 20_000
+TEST = "one-sided paired sign-flip permutation test of per-episode differences, Holm over the k shapes"
+_STREAM = 0x636F6E66  # "conf": the fresh seeds' own random stream, apart from the search's
+
+
+def confirm_seeds(seed: int, n: int, exclude: list[int]) -> list[int]:
+    """``n`` episode seeds drawn from ``seed``'s confirmation stream, none of them in ``exclude``.
+
+    The same ``(seed, n, exclude)`` always gives the same seeds, and the seeds for ``n`` are the first
+    ``n`` of those for any larger count.
+    """
+    if n < 1:
+        raise ValueError(f"confirmation needs >= 1 trial, got {n}")
+    rng, taken, out = np.random.default_rng([seed, _STREAM]), set(exclude), []
+    while len(out) < n:
+        s = int(rng.integers(0, 2**31 - 1))
+        if s not in taken:
+            taken.add(s)
+            out.append(s)
+    return out
+
+
+def paired_drop_p(shape: np.ndarray, nominal: np.ndarray, permutations: int = PERMUTATIONS,
+                  seed: int = 0) -> float:
+    """One-sided p-value that ``shape`` scores lower than ``nominal`` on the same episodes.
+
+    Under the null hypothesis (the shape does not change the policy's success) each per-episode
+    difference is as likely positive as negative, so the observed mean difference is compared with the
+    mean differences of random sign flips (exact over all flips when there are at most 16 non-zero
+    differences). Episodes where either score is NaN (a simulator error) are left out.
+
+    Returns:
+        p in (0, 1]; 1.0 without any non-zero difference.
+    """
+    d = np.asarray(shape, np.float64) - np.asarray(nominal, np.float64)
+    d = d[np.isfinite(d) & (d != 0)]
+    if d.size == 0:
+        return 1.0
+    observed = d.sum()
+    if d.size <= 16:  # every sign pattern: exact
+        signs = 1 - 2 * ((np.arange(2**d.size)[:, None] >> np.arange(d.size)) & 1)
+        sums = signs @ d
+        return float(np.mean(sums <= observed + 1e-12))
+    rng = np.random.default_rng(seed)
+    sums = (rng.choice((-1.0, 1.0), size=(permutations, d.size)) * d).sum(axis=1)
+    return float((1 + np.sum(sums <= observed + 1e-12)) / (1 + permutations))
+
+
+def holm(p_values: list[float]) -> list[float]:
+    """Holm-Bonferroni adjusted p-values (same order as given)."""
+    p = np.asarray(p_values, np.float64)
+    order = np.argsort(p, kind="stable")
+    adjusted = np.empty_like(p)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(p) - rank) * p[i]))
+        adjusted[i] = running
+    return adjusted.tolist()
+
+
+def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nominal: trimesh.Trimesh, evaluator,
+            search_seeds: list[int], seed: int, trials: int, ci: str = "auto",
+            on_evaluated: Callable[[], None] | None = None) -> dict:
+    """Score the nominal object and each CrashShape on ``trials`` fresh episodes; test each drop.
+
+    Args:
+        run_dir: the run folder (gets ``confirm-<trials>.jsonl``).
+        best: the CrashShapes' journal records, rank 1 first (:func:`grt.outputs.crash_records`).
+        meshes: their meshes, in the same order.
+        nominal: the nominal object.
+        evaluator: the run's evaluator (still open).
+        search_seeds: the episodes of the search (excluded from the fresh ones).
+        seed: ``budget.seed``.
+        trials: fresh episodes per shape.
+        ci: the task's interval method for the scores' ``ci95``.
+        on_evaluated: called after each shape is scored (a progress bar).
+
+    Returns:
+        The ``confirm`` block of ``summary.json``: ``trials, seeds, s0, s0_ci95, test, alpha, shapes``
+        (per CrashShape: ``rank, iteration, candidate, search_score, score, ci95, drop, p_value, p_holm,
+        confirmed``), ``confirmed_final_drop`` and ``confirmed`` (how many shapes passed the test).
+    """
+    seeds = confirm_seeds(seed, trials, search_seeds)
+    journal = Journal(Path(run_dir) / f"confirm-{trials}.jsonl")
+
+    def scores(t: int, i: int, mesh: trimesh.Trimesh) -> dict:
+        h = mesh_hash(mesh.vertices, mesh.faces)
+        rec = journal.get(t, i)
+        if rec is not None:
+            if rec["mesh_hash"] != h or [tr["seed"] for tr in rec["trials"]] != seeds:
+                raise JournalError(f"{journal.path}: the confirmation of iteration {t} candidate {i} was made for "
+                                   "another shape or other episodes; delete the file to confirm again")
+            return rec
+        result = evaluator.evaluate([mesh], seeds)[0]
+        rec = {"iteration": t, "candidate": i, "score": float(result.score), "mesh_hash": h,
+               "ci95": list(result.ci95(ci)), "outcomes": result.outcomes,
+               "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
+                           "mode": o.mode} for o in result.trials]}
+        journal.append(rec)
+        if on_evaluated:
+            on_evaluated()
+        return rec
+
+    nom = scores(0, 0, nominal)
+    nominal_trials = np.array([tr["score"] for tr in nom["trials"]])
+    s0 = nom["score"]
+    shapes = []
+    for rank, (rec, mesh) in enumerate(zip(best, meshes, strict=True), start=1):
+        got = scores(rec["iteration"], rec["candidate"], mesh)
+        shape_trials = np.array([tr["score"] for tr in got["trials"]])
+        shapes.append({"rank": rank, "iteration": rec["iteration"], "candidate": rec["candidate"],
+                       "search_score": rec["score"], "score": got["score"], "ci95": got["ci95"],
+                       "drop": _drop(s0, got["score"]),
+                       "p_value": paired_drop_p(shape_trials, nominal_trials, seed=seed),
+                       "outcomes": got["outcomes"]})
+    for shape, adjusted in zip(shapes, holm([s["p_value"] for s in shapes]), strict=True):
+        shape["p_holm"] = adjusted
+        shape["confirmed"] = bool(adjusted < ALPHA and shape["score"] < s0)
+    valid = nominal_trials[np.isfinite(nominal_trials)]
+    return {"trials": trials, "seeds": seeds, "s0": s0, "s0_ci95": list(score_interval(valid, ci)),
+            "test": TEST, "alpha": ALPHA, "shapes": shapes,
+            "confirmed_final_drop": shapes[0]["drop"] if shapes else None,
+            "confirmed": sum(s["confirmed"] for s in shapes)}
+
+
+def _drop(s0: float, score: float) -> float:
+    """Relative drop ``(S0 - score) / S0`` (NaN when S0 is not positive or a score is missing)."""
+    if not (np.isfinite(s0) and np.isfinite(score) and s0 > 0):
+        return float("nan")
+    return float((s0 - score) / s0)
