@@ -126,12 +126,8 @@ def bench_inference(task: dict, policy: dict, mesh, parts, batch: int) -> dict:
     session = instantiate(task["session"], policy=policy_obj, _convert_="all")
     try:
         session.load_object(mesh, parts)
-        observations, seeds = [], list(range(1, batch + 1))
-        for seed in seeds:
-            session.env.reset(seed=seed, options=dict(reconfigure=True))
-            session._target, session._gripper = session._qpos(), 1.0
-            session._move(session._target, session.steps["settle"])
-            observations.append(session._observe())
+        seeds = list(range(1, batch + 1))
+        observations = [session.observe(seed) for seed in seeds]
     finally:
         session.close()
     policy_obj.plan(observations[0], 0)  # warm-up

@@ -126,12 +126,8 @@ class GraspSession(TaskSession):
 
     # --- episode -------------------------------------------------------------------------------------
     def _episode(self, seed: int, info: dict) -> str:
-        env = self.unwrapped
-        self.env.reset(seed=seed, options=dict(reconfigure=True))
-        self._target = self._qpos()
-        self._gripper = 1.0
-        info["placement"] = dict(env.placement)
-        self._move(self._target, self.steps["settle"])
+        self._settle(seed)
+        info["placement"] = dict(self.unwrapped.placement)
         self._check_health()
         self._rest_z = self._object_pose()[2]
         if seed in self._planned:  # planned ahead in a batch (prefetch): the same cloud, the same grasps
@@ -158,6 +154,17 @@ class GraspSession(TaskSession):
         self._move(q_grasp, self.steps["approach"])
         return self._close_lift_shake(grasp_pose, info)
 
+    def observe(self, seed: int) -> GraspObservation:
+        """What the policy sees in trial ``seed``: the scene rebuilt from the seed, settled, captured."""
+        self._settle(int(seed))
+        return self._observe()
+
+    def _settle(self, seed: int) -> None:
+        """Rebuild trial ``seed``'s scene (a trial depends only on object and seed) and let it come to rest."""
+        self.env.reset(seed=seed, options=dict(reconfigure=True))
+        self._target, self._gripper = self._qpos(), 1.0
+        self._move(self._target, self.steps["settle"])
+
     def _observe(self) -> GraspObservation:
         """Render the cameras: the object's cloud (and the table around it if the policy asks)."""
         radius = float(getattr(self.policy, "context_radius", 0.0) or 0.0)
@@ -181,9 +188,7 @@ class GraspSession(TaskSession):
         for start in range(0, len(seeds), size):
             chunk, observations, capture = seeds[start:start + size], [], []
             for seed in chunk:
-                self.env.reset(seed=seed, options=dict(reconfigure=True))
-                self._target, self._gripper = self._qpos(), 1.0
-                self._move(self._target, self.steps["settle"])
+                self._settle(seed)
                 t = time.perf_counter()
                 observations.append(self._observe())
                 capture.append(time.perf_counter() - t)
