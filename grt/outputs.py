@@ -192,7 +192,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "nominal_entropy": nominal.get("entropy"),
         "num_handles": int(len(handle_set.handles)), "num_anchors": int(len(handle_set.anchors)),
         "population": cfg.budget.population, "iterations": cfg.budget.iterations,
-        "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": cfg.budget.tau,
+        "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": cfg.budget.tau, "seed": cfg.budget.seed,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
         "mesh_preparation": deformer.mesh.metadata.get("grt_prepare"),  # repairs, remesh, fidelity (mm)

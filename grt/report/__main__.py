@@ -22,7 +22,7 @@ from pathlib import Path
 from grt.errors import check_output_file, exit_on_user_error, write_output
 from grt.scores import ScoreSpec
 
-COLUMNS = ("task", "object", "policy", "selector", "optimizer", "tau", "score_name", "score_unit", "s0",
+COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name", "score_unit", "s0",
            "best_score", "final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc",
            "evaluations", "wall_s")
 REQUIRED = ("task", "object", "selector", "optimizer", "final_drop", "delta_complexity", "iter_at_50", "auc")
@@ -75,6 +75,8 @@ def _fmt(v, kind: str = "") -> str:
         return "-"
     if kind == "pct":
         return f"{100 * v:.1f}"
+    if kind == "g":
+        return f"{v:g}"
     return f"{v:.3f}" if isinstance(v, float) else str(v)
 
 
@@ -108,10 +110,11 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     """Per-run table, per-method table (the paper's columns) and the failed jobs."""
     confirmed = any(r.get("confirm") for r in rows)
     head, rule = ("| Confirmed drop (%) ", "---|") if confirmed else ("", "")
-    lines = [f"| task | object | policy | method | score | S0 | best | Final Drop (%) ↑ {head}| ΔComplexity ↓ "
-             f"| Iter@50% ↓ | AUC ↑ |", f"|---|---|---|---|---|---|---|---|{rule}---|---|---|"]
+    lines = [f"| task | object | policy | method | σ | seed | score | S0 | best | Final Drop (%) ↑ {head}| ΔComplexity ↓ "
+             f"| Iter@50% ↓ | AUC ↑ |", f"|---|---|---|---|---|---|---|---|---|---|{rule}---|---|---|"]
     for r in rows:
         lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | "
+                     f"{_fmt(r.get('sigma'), 'g')} | {_fmt(r.get('seed'))} | "
                      f"{ScoreSpec.from_summary(r).label} | {score_cell(r, 's0')} | {score_cell(r, 'best_score')} | "
                      f"{_fmt(r['final_drop'], 'pct')} | {_confirm_cell(r) if confirmed else ''}"
                      f"{_fmt(r['delta_complexity'])} | "
