@@ -29,7 +29,7 @@ def journal_keys(run_dir: Path) -> list[tuple[int, int]]:
 
 
 def test_smoke_run_writes_every_artifact(tmp_path):
-    cfg = compose_run([*FAST, f"paths.output_dir={tmp_path}"])
+    cfg = compose_run([*FAST, "budget.confirm_trials=2", f"paths.output_dir={tmp_path}"])
     summary = run(cfg)
     n = 1 + cfg.budget.population * cfg.budget.iterations
     assert journal_keys(tmp_path) == [(0, 0)] + [(t, i) for t in (1, 2) for i in range(3)]
@@ -47,6 +47,12 @@ def test_smoke_run_writes_every_artifact(tmp_path):
     rec = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[1])
     assert {"theta", "score", "trials", "outcomes", "smoothness_m", "entropy", "mesh_hash"} <= set(rec)
     assert len(rec["trials"]) == cfg.budget.trials
+    # the CrashShapes confirmed on fresh episodes by the real simulator, journaled apart from the search
+    conf = summary["confirm"]
+    assert len(conf["seeds"]) == 2 and not set(conf["seeds"]) & {t["seed"] for t in rec["trials"]}
+    assert [c["rank"] for c in conf["shapes"]] == [s["rank"] for s in shapes]
+    assert all(0.0 <= c["score"] <= 1.0 or c["score"] != c["score"] for c in conf["shapes"])
+    assert len((tmp_path / "confirm-2.jsonl").read_text().splitlines()) == 1 + len(shapes)
 
 
 def _cli(args, **kw):
