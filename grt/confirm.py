@@ -103,7 +103,7 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
         seed: ``budget.seed``.
         trials: fresh episodes per shape.
         ci: the task's interval method for the scores' ``ci95``.
-        on_evaluated: called after each shape is scored (a progress bar).
+        on_evaluated: called after each shape is scored or replayed from the journal (a progress bar).
 
     Returns:
         The ``confirm`` block of ``summary.json``: ``trials, seeds, s0, s0_ci95, test, alpha, shapes``
@@ -116,17 +116,16 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
     def scores(t: int, i: int, mesh: trimesh.Trimesh) -> dict:
         h = mesh_hash(mesh.vertices, mesh.faces)
         rec = journal.get(t, i)
-        if rec is not None:
-            if rec["mesh_hash"] != h or [tr["seed"] for tr in rec["trials"]] != seeds:
-                raise JournalError(f"{journal.path}: the confirmation of iteration {t} candidate {i} was made for "
-                                   "another shape or other episodes; delete the file to confirm again")
-            return rec
-        result = evaluator.evaluate([mesh], seeds)[0]
-        rec = {"iteration": t, "candidate": i, "score": float(result.score), "mesh_hash": h,
-               "ci95": list(result.ci95(ci)), "outcomes": result.outcomes,
-               "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
-                           "mode": o.mode} for o in result.trials]}
-        journal.append(rec)
+        if rec is None:
+            result = evaluator.evaluate([mesh], seeds)[0]
+            rec = {"iteration": t, "candidate": i, "score": float(result.score), "mesh_hash": h,
+                   "ci95": list(result.ci95(ci)), "outcomes": result.outcomes,
+                   "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
+                               "mode": o.mode} for o in result.trials]}
+            journal.append(rec)
+        elif rec["mesh_hash"] != h or [tr["seed"] for tr in rec["trials"]] != seeds:
+            raise JournalError(f"{journal.path}: the confirmation of iteration {t} candidate {i} was made for "
+                               "another shape or other episodes; delete the file to confirm again")
         if on_evaluated:
             on_evaluated()
         return rec

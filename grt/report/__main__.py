@@ -2,8 +2,9 @@
 
 Reads only ``summary.json`` files (and ``error.txt`` of failed jobs): Final Drop (%), ΔComplexity,
 Iter@50%, AUC, per run (with the confirmed Final Drop of runs that confirmed their CrashShapes on fresh
-episodes, ``budget.confirm_trials``: the rank-1 drop and how many of the k drops are significant), plus the mean over runs of each (selector, optimizer) method, the way the
-paper aggregates objects into Tables 1 and 2. S0 and the best score are in the task's own score, named
+episodes, ``budget.confirm_trials``: the rank-1 drop and how many of the k drops are significant), plus
+the mean over runs of each (selector, optimizer) method, the way the paper aggregates objects into
+Tables 1 and 2. S0 and the best score are in the task's own score, named
 per run (``success rate``, ``mean opening (m)``); the other columns are relative to S0, unit-free.
 A mistake (no such folder, no or a broken ``summary.json``, a ``--csv`` path that cannot be written) is
 one ``error:`` line and exit code 2.
@@ -22,8 +23,8 @@ from pathlib import Path
 from grt.errors import check_output_file, exit_on_user_error, write_output
 from grt.scores import ScoreSpec
 
-COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name", "score_unit", "s0",
-           "best_score", "final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc",
+COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name",
+           "score_unit", "s0", "best_score", "final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc",
            "evaluations", "wall_s")
 REQUIRED = ("task", "object", "selector", "optimizer", "final_drop", "delta_complexity", "iter_at_50", "auc")
 
