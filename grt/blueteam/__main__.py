@@ -32,6 +32,7 @@ def _plain(node) -> dict:
 def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     """Run one blue-team study (see the module docstring); returns ``{"rows": [...], ...}``."""
     from grt.blueteam.core import (
+        BlueTeamError,
         Geometry,
         distinct,
         load_run,
@@ -64,7 +65,10 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
                                ev_cfg.max_hull_vertices)
     s0 = float(next(r["score"] for r in records if r["iteration"] == 0))
     train_recs = select_crashshapes(records, bt.crashshapes, bt.top_k, bt.failing_below, s0)
-    failing = [r for r in select_crashshapes(records, "all-failing", 0, bt.failing_below, s0)]
+    try:  # held-out candidates: failing ones not trained on (named CrashShapes may leave none)
+        failing = select_crashshapes(records, "all-failing", 0, bt.failing_below, s0)
+    except BlueTeamError:
+        failing = []
     held_recs = distinct(failing, train_recs, bt.heldout.candidates)
 
     def geometry(rec, role, theta=None, name=None):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,11 +71,22 @@ def trainable_checkpoint(policy_cfg: dict) -> str:
     return str(policy_cfg["checkpoint"])
 
 
-def select_crashshapes(records: list[dict], mode: str, top_k: int, failing_below: float, s0: float) -> list[dict]:
-    """The journal records trained on: ``top1``, ``topk`` or ``all-failing`` (score < failing_below x S0)."""
+def select_crashshapes(records: list[dict], mode, top_k: int, failing_below: float, s0: float) -> list[dict]:
+    """The journal records trained on.
+
+    Args:
+        mode: ``top1``, ``topk`` or ``all-failing`` (the lowest-scoring candidates with score <
+            failing_below x S0), or the user's own choice: a list of candidate names (``it2_c5``, or the
+            file names the run wrote, ``rank2_it2_c5.stl``), trained on whatever they scored.
+
+    Raises:
+        BlueTeamError: an unknown mode or name, or no failing candidate.
+    """
     from grt.outputs import crash_records
 
     ranked = crash_records(records, len(records))
+    if not isinstance(mode, str):
+        return _named(records, list(mode))
     failing = [r for r in ranked if r["score"] < failing_below * s0]
     if mode == "top1":
         chosen = failing[:1]
@@ -82,11 +94,37 @@ def select_crashshapes(records: list[dict], mode: str, top_k: int, failing_below
         chosen = failing[:top_k]
     elif mode == "all-failing":
         chosen = failing
+    elif _NAME.search(mode):
+        return _named(records, [mode])
     else:
-        raise BlueTeamError(f"blueteam.crashshapes={mode!r}: use top1, topk or all-failing")
+        raise BlueTeamError(f"blueteam.crashshapes={mode!r}: use top1, topk, all-failing or candidate names "
+                            "such as [it2_c5,it3_c1]")
     if not chosen:
         raise BlueTeamError(f"the run found no CrashShape scoring below {failing_below:.0%} of "
                             f"S0 = {s0:.4g}: nothing to blue-team (red-team longer, or raise blueteam.failing_below)")
+    return chosen
+
+
+_NAME = re.compile(r"it(\d+)_c(\d+)")
+
+
+def _named(records: list[dict], names: list) -> list[dict]:
+    """The candidates named ``it<iteration>_c<candidate>`` (any text around it, e.g. a CrashShape file name)."""
+    by_name = {name_of(r): r for r in records  # simulated candidates (an implausible one has no score)
+               if r.get("theta") is not None and r["iteration"] > 0 and r["score"] == r["score"]}
+    chosen = []
+    for raw in names:
+        match = _NAME.search(str(raw))
+        rec = by_name.get(f"it{match[1]}_c{match[2]}") if match else None
+        if rec is None:
+            lowest = sorted(by_name.values(), key=lambda r: r["score"])[:5]
+            raise BlueTeamError(f"blueteam.crashshapes: no candidate {raw!r} in the run's journal; name them "
+                                f"it<iteration>_c<candidate>, e.g. the lowest-scoring: "
+                                f"{', '.join(name_of(r) for r in lowest) or 'none'}")
+        if rec not in chosen:
+            chosen.append(rec)
+    if not chosen:
+        raise BlueTeamError("blueteam.crashshapes=[]: name at least one candidate, or use top1")
     return chosen
 
 

@@ -84,3 +84,26 @@ def test_an_untrainable_policy_is_refused_in_one_line(tmp_path):
     assert res.returncode == 2 and "cannot be fine-tuned" in res.stderr and "Traceback" not in res.stderr, res.stderr
     res = _cli("grt.blueteam", f"run={tmp_path / 'nothing'}", f"hydra.run.dir={tmp_path / 'bt2'}")
     assert res.returncode == 2 and "not a red-team run folder" in res.stderr
+
+
+def test_crashshapes_are_chosen_by_rank_or_by_name():
+    from grt.blueteam.core import BlueTeamError, select_crashshapes
+
+    theta = [0.0]
+    recs = [{"iteration": 0, "candidate": 0, "score": 1.0, "theta": theta},
+            {"iteration": 1, "candidate": 0, "score": 0.2, "theta": theta},
+            {"iteration": 1, "candidate": 1, "score": 0.9, "theta": theta},
+            {"iteration": 2, "candidate": 3, "score": 0.4, "theta": theta},
+            {"iteration": 2, "candidate": 4, "score": float("nan"), "theta": theta}]  # implausible, not simulated
+    names = lambda chosen: [f"it{r['iteration']}_c{r['candidate']}" for r in chosen]  # noqa: E731
+    assert names(select_crashshapes(recs, "top1", 3, 0.5, 1.0)) == ["it1_c0"]
+    assert names(select_crashshapes(recs, "all-failing", 3, 0.5, 1.0)) == ["it1_c0", "it2_c3"]
+    # the user's own choice, in the user's order, whatever it scored; file names of the run's CrashShapes work
+    assert names(select_crashshapes(recs, ["it2_c3", "crashshapes/rank3_it1_c1.stl"], 3, 0.5, 1.0)) == \
+        ["it2_c3", "it1_c1"]
+    assert names(select_crashshapes(recs, "it2_c3", 3, 0.5, 1.0)) == ["it2_c3"]
+    for bad in (["it9_c9"], ["it2_c4"], ["it0_c0"], "best"):  # unknown, not simulated, the nominal, a typo
+        with pytest.raises(BlueTeamError, match="crashshapes"):
+            select_crashshapes(recs, bad, 3, 0.5, 1.0)
+    with pytest.raises(BlueTeamError, match="no CrashShape scoring below"):
+        select_crashshapes(recs, "top1", 3, 0.1, 1.0)
