@@ -107,3 +107,24 @@ def test_crashshapes_are_chosen_by_rank_or_by_name():
             select_crashshapes(recs, bad, 3, 0.5, 1.0)
     with pytest.raises(BlueTeamError, match="no CrashShape scoring below"):
         select_crashshapes(recs, "top1", 3, 0.1, 1.0)
+
+
+@pytest.mark.sim
+def test_in_hand_tilt_measures_the_nominal_plug_and_the_runs_candidates(red_team_run, tmp_path):
+    res = subprocess.run([sys.executable, "scripts/in_hand_tilt.py", str(red_team_run), "--top", "1", "--episodes",
+                          "1", "--steps", "5"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    rows = [line.split() for line in res.stdout.splitlines()[1:]]
+    assert [r[0] for r in rows][0] == "nominal" and len(rows) == 2 and rows[1][0].startswith("it")
+    assert 0.0 <= float(rows[0][-1]) < 10.0  # the nominal plug sits nearly upright in the hand
+    (tmp_path / "grasp" / ".hydra").mkdir(parents=True)
+    from omegaconf import OmegaConf
+
+    from tests.runner.conftest import compose_run
+
+    (tmp_path / "grasp" / ".hydra" / "config.yaml").write_text(OmegaConf.to_yaml(compose_run(["task=grasp"])))
+    (tmp_path / "grasp" / "handles.json").write_text('{"handles": [0], "anchors": [1, 2, 3]}')
+    (tmp_path / "grasp" / "journal.jsonl").write_text("")
+    res = subprocess.run([sys.executable, "scripts/in_hand_tilt.py", str(tmp_path / "grasp")], cwd=ROOT,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "measured for insertion runs" in res.stderr and "Traceback" not in res.stderr
