@@ -150,13 +150,25 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
                      workers=cfg.workers, seed=int(bt.seed), weights=weights, max_steps=bt.max_steps)
     session = build_session(task, None)
 
+    guard = out_dir / "val_nominal.json"  # the nominal object's validation score before fine-tuning
+    tolerance = float(bt.nominal_tolerance)
+
     def validate(path: Path) -> float:
+        """The CrashShapes' mean validation score, for a checkpoint that keeps the nominal object within
+        ``nominal_tolerance`` of where it started; one that does not ranks below every one that does."""
         session.policy = RslRlPolicy(str(path), task=task["name"])
-        scores = []
+        per = {}
         for g in shapes:
             session.load_object(g.mesh, g.parts)
-            scores.append(np.mean([session.run_trial(s).score for s in val_seeds]))
-        return float(np.mean(scores))
+            per[g.name] = float(np.mean([session.run_trial(s).score for s in val_seeds]))
+        if not guard.exists():  # the first validation is of the policy before any update
+            guard.write_text(json.dumps({"nominal": per["nominal"], "tolerance": tolerance}))
+        start = json.loads(guard.read_text())["nominal"]
+        crash = float(np.mean([v for k, v in per.items() if k != "nominal"]))
+        kept = per["nominal"] >= start - tolerance - 1e-9
+        log.info("validation: CrashShapes %.3f, nominal %.3f (start %.3f, %s)", crash, per["nominal"], start,
+                 "kept" if kept else f"more than {tolerance:.2f} lost: ranked below every kept checkpoint")
+        return crash if kept else crash - 2.0
 
     try:
         result = train(env, train_cfg, out_dir, task["name"], task, iterations=int(bt.iterations),

@@ -53,6 +53,8 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     assert (out_dir / "rered" / "summary.json").exists()
     policy = RslRlPolicy(str(out_dir / "policy.pt"), task="insertion")
     assert policy.config["blueteam"]["shapes"][0] == "nominal"
+    guard = json.loads((out_dir / "val_nominal.json").read_text())  # early stopping's nominal baseline
+    assert 0.0 <= guard["nominal"] <= 1.0 and guard["tolerance"] == 0.05
     before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
     after = torch.load(out_dir / "last.pt", weights_only=False)["actor_state_dict"]
     assert any(not torch.equal(before[k], after[k]) for k in before), "PPO did not change the policy"
