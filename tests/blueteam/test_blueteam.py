@@ -58,6 +58,8 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
     after = torch.load(out_dir / "last.pt", weights_only=False)["actor_state_dict"]
     assert any(not torch.equal(before[k], after[k]) for k in before), "PPO did not change the policy"
+    normalizer = [k for k in before if k.startswith("obs_normalizer.")]  # frozen: the inputs stay as trained
+    assert normalizer and all(torch.equal(before[k], after[k]) for k in normalizer)
     # A fine-tune killed before it finished: resume continues from last.pt, repeats no iteration.
     (out_dir / "policy.pt").unlink()
     scores = json.loads((out_dir / "scores.json").read_text())
