@@ -8,7 +8,7 @@ hand, on the run's first evaluation episodes::
 
     .venv/bin/python scripts/in_hand_tilt.py outputs/insertion/usb_plug/manual-topdm/<time> --top 10
 
-Measured in experiments/table3_blueteam/README.md ("Why the state policy is not blue-teamed").
+Measured in experiments/table3_blueteam/README.md ("Why the state policy's CrashShapes are out of its reach").
 """
 
 from __future__ import annotations
@@ -23,16 +23,6 @@ class NotInsertionError(ValueError):
     """The run is not an insertion run."""
 
 
-class _Still:
-    """A policy that holds the hand still."""
-
-    def reset(self, seed: int) -> None:
-        pass
-
-    def act(self, obs: dict) -> np.ndarray:
-        return np.zeros((1, 6), np.float32)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run", type=Path, help="an insertion red-team run folder")
@@ -43,33 +33,22 @@ def main() -> None:
 
     from omegaconf import OmegaConf
 
-    from grt.blueteam.core import load_run, name_of
+    from grt.blueteam.core import load_run, name_of, run_geometry
     from grt.errors import exit_on_user_error
-    from grt.evaluators.collision import make_collision
-    from grt.geometry.deform import ShapeDeformer, deformer_options
-    from grt.geometry.mesh import load_mesh
-    from grt.geometry.prepare import MeshSettings
     from grt.outputs import crash_records
     from grt.redteam import episode_seeds
-    from grt.selectors.base import HandleSet
     from grt.tasks.insertion import InsertionSession
 
     with exit_on_user_error(NotInsertionError):
         cfg, records = load_run(args.run)
         if cfg.task.name != "insertion":
             raise NotInsertionError(f"{args.run} is a {cfg.task.name} run: the in-hand tilt is measured for insertion runs")
-        nominal = load_mesh(cfg.object, scale=cfg.get("object_scale", 1.0),
-                            settings=MeshSettings.from_config(cfg.get("mesh")))
-        handles = HandleSet.from_json((args.run / "handles.json").read_text())
-        deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **deformer_options(cfg.deformer))
-        ev = cfg.evaluator
-        collision = make_collision(ev.collision, nominal, OmegaConf.to_container(ev.coacd, resolve=True),
-                                   f"{cfg.paths.cache_dir}/coacd", ev.max_hull_vertices)
+        nominal, deformer, collision = run_geometry(cfg, args.run, cfg.paths.cache_dir)
         session_cfg = OmegaConf.to_container(cfg.task.session, resolve=True)
         session_cfg.pop("_target_", None)
         session_cfg["cloud_points"] = 0
         seeds = episode_seeds(int(cfg.budget.seed), args.episodes)
-        with InsertionSession(policy=_Still(), **session_cfg) as session:
+        with InsertionSession(policy=None, **session_cfg) as session:  # no policy: the hand is held still
             def tilts(mesh) -> list[float]:
                 session.load_object(mesh, collision.parts(mesh))
                 out = []

@@ -32,23 +32,19 @@ def _plain(node) -> dict:
 def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     """Run one blue-team study (see the module docstring); returns ``{"rows": [...], ...}``."""
     from grt.blueteam.core import (
-        BlueTeamError,
         Geometry,
         distinct,
+        failing_records,
         load_run,
         name_of,
+        run_geometry,
         select_crashshapes,
         trainable_checkpoint,
         write_table,
     )
-    from grt.evaluators.collision import make_collision
-    from grt.geometry.deform import ShapeDeformer, deformer_options
-    from grt.geometry.mesh import load_mesh
-    from grt.geometry.prepare import MeshSettings
     from grt.policies.rsl_rl import load_checkpoint
     from grt.redteam import episode_seeds
     from grt.scores import ScoreSpec
-    from grt.selectors.base import HandleSet
 
     bt = cfg.blueteam
     run_dir = Path(cfg.run)
@@ -56,19 +52,10 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     task, policy_cfg = _plain(run_cfg.task), _plain(run_cfg.policy)
     checkpoint = trainable_checkpoint(policy_cfg)
     ckpt = load_checkpoint(checkpoint)
-    nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0),  # prepared as the run did
-                        settings=MeshSettings.from_config(run_cfg.get("mesh")))
-    handles = HandleSet.from_json((run_dir / "handles.json").read_text())
-    deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **deformer_options(run_cfg.deformer))
-    ev_cfg = run_cfg.evaluator
-    collision = make_collision(ev_cfg.collision, nominal, _plain(ev_cfg.coacd), f"{cfg.paths.cache_dir}/coacd",
-                               ev_cfg.max_hull_vertices)
+    nominal, deformer, collision = run_geometry(run_cfg, run_dir, cfg.paths.cache_dir)
     s0 = float(next(r["score"] for r in records if r["iteration"] == 0))
     train_recs = select_crashshapes(records, bt.crashshapes, bt.top_k, bt.failing_below, s0)
-    try:  # held-out candidates: failing ones not trained on (named CrashShapes may leave none)
-        failing = select_crashshapes(records, "all-failing", 0, bt.failing_below, s0)
-    except BlueTeamError:
-        failing = []
+    failing = failing_records(records, bt.failing_below, s0)  # held-out: failing ones not trained on
     held_recs = distinct(failing, train_recs, bt.heldout.candidates)
 
     def geometry(rec, role, theta=None, name=None):

@@ -58,6 +58,26 @@ def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
     return OmegaConf.load(cfg_file), Journal(journal).records
 
 
+def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tuple:
+    """``(nominal, deformer, collision)`` of a red-team run, prepared as the run did: its nominal mesh,
+    the deformer over its handles (a journaled theta gives the candidate's mesh bit for bit) and its
+    collision-part maker (CoACD cache under ``cache_dir``)."""
+    from grt.evaluators.collision import make_collision
+    from grt.geometry.deform import ShapeDeformer, deformer_options
+    from grt.geometry.mesh import load_mesh
+    from grt.geometry.prepare import MeshSettings
+    from grt.selectors.base import HandleSet
+
+    nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0),
+                        settings=MeshSettings.from_config(run_cfg.get("mesh")))
+    handles = HandleSet.from_json((Path(run_dir) / "handles.json").read_text())
+    deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **deformer_options(run_cfg.deformer))
+    ev = run_cfg.evaluator
+    collision = make_collision(ev.collision, nominal, OmegaConf.to_container(ev.coacd, resolve=True),
+                               f"{cache_dir}/coacd", ev.max_hull_vertices)
+    return nominal, deformer, collision
+
+
 def trainable_checkpoint(policy_cfg: dict) -> str:
     """The rsl-rl checkpoint path of the run's policy.
 
@@ -82,12 +102,9 @@ def select_crashshapes(records: list[dict], mode, top_k: int, failing_below: flo
     Raises:
         BlueTeamError: an unknown mode or name, or no failing candidate.
     """
-    from grt.outputs import crash_records
-
-    ranked = crash_records(records, len(records))
     if not isinstance(mode, str):
         return _named(records, list(mode))
-    failing = [r for r in ranked if r["score"] < failing_below * s0]
+    failing = failing_records(records, failing_below, s0)
     if mode == "top1":
         chosen = failing[:1]
     elif mode == "topk":
@@ -103,6 +120,13 @@ def select_crashshapes(records: list[dict], mode, top_k: int, failing_below: flo
         raise BlueTeamError(f"the run found no CrashShape scoring below {failing_below:.0%} of "
                             f"S0 = {s0:.4g}: nothing to blue-team (red-team longer, or raise blueteam.failing_below)")
     return chosen
+
+
+def failing_records(records: list[dict], failing_below: float, s0: float) -> list[dict]:
+    """The run's explored candidates scoring below ``failing_below`` x S0, lowest first (maybe none)."""
+    from grt.outputs import crash_records
+
+    return [r for r in crash_records(records, len(records)) if r["score"] < failing_below * s0]
 
 
 _NAME = re.compile(r"it(\d+)_c(\d+)")
