@@ -50,21 +50,60 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None
     make = instantiate(cfg.evaluator)
     start = time.perf_counter()
+    parts, parts_dir = saved_parts(cfg.object, cfg.get("parts", "auto"), scale)
+    if parts_dir is not None:
+        print(f"collision     the {len(parts)} convex parts the red-team run simulated this shape with "
+              f"({parts_dir}); parts=decompose runs CoACD on the file instead", flush=True)
     with make(task=_plain(cfg.task), policy=_plain(cfg.policy), nominal=mesh, render_dir=render_dir) as ev:
-        result = ev.evaluate([mesh], seeds)[0]
+        result = ev.evaluate([mesh], seeds, parts=None if parts is None else [parts])[0]
         collision_s = ev.collision_s
     wall = time.perf_counter() - start
     summary = {**result.summary(ci=score.ci), **score.fields(), "object": str(cfg.object),
                "mesh_hash": mesh_hash(mesh.vertices, mesh.faces),
                "mesh_preparation": mesh.metadata.get("grt_prepare"),
                "wall_s": round(wall, 3), "worker_s": round(result.wall_s, 3),
-               "trials_per_s": round(len(seeds) / wall, 4), "collision_s": round(collision_s, 4)}
+               "trials_per_s": round(len(seeds) / wall, 4), "collision_s": round(collision_s, 4),
+               "collision_parts": str(parts_dir) if parts_dir is not None else "coacd"}
     output_dir.mkdir(parents=True, exist_ok=True)
     record = {**summary, "seeds": seeds, "trials": [asdict(t) for t in result.trials]}
     (output_dir / "evaluation.json").write_text(json.dumps(record, indent=1, default=str))
     if render_dir and not any(Path(render_dir).glob("*.png")):
         log.warning("render=true, but the task session wrote no pictures (it has no render(path))")
     return summary
+
+
+def saved_parts(spec: str, mode: str, scale: float = 1.0) -> tuple[list | None, Path | None]:
+    """The convex parts saved beside a CrashShape file (``<stem>_parts/part*.obj``), or ``(None, None)``.
+
+    A red-team run writes each CrashShape with the parts it was simulated with (:mod:`grt.outputs`);
+    re-scoring the file with those reproduces the run's physics, where a fresh CoACD run on the file
+    may cut the shape differently. ``mode``: ``auto`` (use them when present) or ``decompose`` (never).
+
+    Raises:
+        grt.evaluators.collision.CollisionError: an unknown ``mode``, or a parts folder without readable parts.
+    """
+    import numpy as np
+    import trimesh
+
+    from grt.evaluators.collision import CollisionError as PartsError
+
+    if mode not in ("auto", "decompose"):
+        raise PartsError(f"parts={mode!r} is not a setting: parts=auto (use a CrashShape's saved "
+                         "<stem>_parts folder when there is one) or parts=decompose (run CoACD on the file)")
+    path = Path(str(spec))
+    folder = path.with_name(f"{path.stem}_parts")
+    if mode == "decompose" or not path.suffix or not folder.is_dir():
+        return None, None
+    files = sorted(folder.glob("part*.obj"))
+    try:
+        parts = [np.asarray(trimesh.load(f, force="mesh").vertices, np.float64) * float(scale) for f in files]
+    except Exception as err:  # noqa: BLE001 - any unreadable file is the same user problem
+        raise PartsError(f"{folder}: a part cannot be read ({type(err).__name__}: {err}); "
+                         "use parts=decompose to run CoACD on the shape instead") from None
+    if not parts or any(len(p) < 4 for p in parts):
+        raise PartsError(f"{folder} holds no usable convex parts; use parts=decompose to run CoACD on the "
+                         "shape instead")
+    return parts, folder
 
 
 def _plain(node) -> dict:

@@ -74,3 +74,37 @@ def test_figures_of_a_binary_task_say_success_rate():
                "trials": 4, "outcomes": {"success": 3, "missed": 1}, "wall_s": 1.0, "trials_per_s": 4.0,
                "worker_s": 1.0, "collision_s": 0.01}  # written before score_name existed: a success rate
     assert "success rate  0.750  95% CI [0.300, 0.950] (auto)  over 4 trials" in figures(summary)
+
+
+def test_a_crashshape_file_is_scored_with_the_parts_its_run_saved(toy_configs, u_mesh, tmp_path):
+    """A run saves each CrashShape with its simulated convex parts; re-scoring the file uses them."""
+    import trimesh
+
+    from grt.evaluate import evaluate, saved_parts
+    from grt.evaluators.collision import CollisionError
+
+    path = tmp_path / "rank1_it2_c5.obj"
+    u_mesh.export(path)
+    folder = tmp_path / "rank1_it2_c5_parts"
+    folder.mkdir()
+    halves = [u_mesh.vertices[u_mesh.vertices[:, 0] <= 0], u_mesh.vertices[u_mesh.vertices[:, 0] >= 0]]
+    for i, verts in enumerate(halves):
+        trimesh.convex.convex_hull(verts).export(folder / f"part{i:02d}.obj")
+    parts, where = saved_parts(str(path), "auto")
+    assert where == folder and len(parts) == 2
+    assert saved_parts(str(path), "decompose") == (None, None)
+    assert saved_parts("usb_plug", "auto") == (None, None)  # a built-in object has no saved parts
+    with pytest.raises(CollisionError, match="parts='cached' is not a setting"):
+        saved_parts(str(path), "cached")
+
+    cfg = compose([f"object={path}", "budget=smoke", "budget.trials=2", "evaluator.workers=1",
+                   "evaluator.progress=false", f"evaluator.cache_dir={tmp_path / 'coacd'}"])
+    task, policy = toy_configs()
+    cfg.task.session = OmegaConf.create(task["session"])
+    cfg.policy = OmegaConf.create(policy)
+    assert evaluate(cfg, tmp_path / "out")["collision_parts"] == str(folder)
+
+    for f in folder.iterdir():
+        f.unlink()
+    with pytest.raises(CollisionError, match="no usable convex parts"):
+        saved_parts(str(path), "auto")
