@@ -4,7 +4,9 @@ It reads the task's 24-D ``state`` (:mod:`grt.tasks.insertion_env`): the displac
 to the noisy target position and the target's and the TCP's orientation, and commands a
 proportional delta pose, clipped to the action range. Like the learned state policy it never sees
 the plug, so a plug that sits differently in the hand makes it miss: a useful reference for what
-learning adds.
+learning adds. With ``grip=True`` it also reads the ``grip`` observation (the in-hand correction,
+:mod:`grt.tasks.insertion_env`) and servos to ``target @ correction``, the hand pose that puts this
+plug where the nominal grip puts it: what an in-hand pose estimate buys an analytic controller.
 """
 
 from __future__ import annotations
@@ -31,14 +33,22 @@ class ServoInsertionPolicy(Policy):
     Args:
         gain: action per unit of (position error / 0.01 m) and (rotation error / 0.01 rad).
         rotate: also correct the orientation (else position only).
+        grip: correct the target by the observed in-hand pose (the ``grip`` observation).
     """
 
-    def __init__(self, gain: float = 1.0, rotate: bool = True):
-        self.gain, self.rotate = float(gain), bool(rotate)
+    def __init__(self, gain: float = 1.0, rotate: bool = True, grip: bool = False):
+        self.gain, self.rotate, self.grip = float(gain), bool(rotate), bool(grip)
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         state = np.asarray(obs["state"], np.float64)
         tcp_q, target_q, disp = state[:, 10:14], state[:, 17:21], state[:, 21:24]
+        if self.grip:
+            from scipy.spatial.transform import Rotation
+
+            grip = np.asarray(obs["grip"], np.float64)
+            target = Rotation.from_quat(target_q, scalar_first=True)
+            disp = disp + target.apply(grip[:, :3])
+            target_q = (target * Rotation.from_rotvec(grip[:, 3:])).as_quat(scalar_first=True)
         action = np.zeros((len(state), 6))
         action[:, :3] = self.gain * disp / 0.01
         if self.rotate:

@@ -24,7 +24,7 @@ import numpy as np
 import trimesh
 
 from grt.tasks.base import EpisodeSession
-from grt.tasks.insertion_env import STATE_DIM, InsertEnv  # registers GRT-Insert-v1
+from grt.tasks.insertion_env import GRIP_DIM, STATE_DIM, InsertEnv  # registers GRT-Insert-v1
 from grt.tasks.socket import PlugFitError, build_socket, grip_half_width
 
 __all__ = ["InsertEnv", "InsertionSession", "PlugFitError", "plug_geometry"]
@@ -100,7 +100,7 @@ class InsertionSession(EpisodeSession):
 
     @classmethod
     def observation_spec(cls, cloud_points: int = 500, **_) -> dict[str, tuple[int, ...]]:
-        spec = {"state": (STATE_DIM,)}
+        spec = {"state": (STATE_DIM,), "grip": (GRIP_DIM,)}
         if cloud_points:
             spec["cloud"] = (int(cloud_points), 3)
         return spec

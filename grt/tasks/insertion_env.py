@@ -11,6 +11,12 @@ task-space ``pd_ee_delta_pose`` controller; the gripper is not part of the actio
 **Observations** (:meth:`InsertEnv.task_obs`). ``state`` (24,): 7 arm joint positions, TCP pose
 (position, wxyz quaternion), the *noisy* target TCP pose (position with uniform ±1 mm XY noise
 drawn per episode, quaternion) and the displacement from the TCP to the noisy target position.
+``grip`` (6,): the plug's pose in the hand, as the hand correction that would undo its deviation from
+the nominal grip: the transform ``C`` (TCP frame; translation in m, then rotation vector in rad) with
+``target TCP @ C`` the TCP pose that puts *this* plug where the nominal grip puts it at the target. Zero
+for a plug held as designed; a deformed grip that makes the plug hang crooked shows here (an in-hand
+pose estimate, as tactile sensing or a wrist camera gives; ManiSkill's own state observations include
+the held object's pose). Policies use it only if they list it in their observation groups.
 ``cloud`` (``cloud_points``, 3): farthest-point samples of the plug's and the socket's surfaces at
 their current poses, relative to the TCP (sampled once per object from the posed meshes, not rendered).
 
@@ -53,6 +59,7 @@ REST_QPOS = np.array([0.0, -0.2847, 0.0, -2.2441, 0.0, 1.9594, np.pi / 4, 0.04, 
 # TCP orientation in the plug frame: approach (TCP z) down the plug's -z, fingers closing along plug y.
 TCP_IN_PLUG_ROT = np.diag([1.0, -1.0, -1.0])
 STATE_DIM = 24
+GRIP_DIM = 6
 
 
 @register_agent(override=True)  # by uid, so the env's SUPPORTED_ROBOTS check knows it
@@ -77,6 +84,13 @@ def pose_matrix(rot: np.ndarray, pos) -> np.ndarray:
     out = np.eye(4)
     out[:3, :3], out[:3, 3] = rot, pos
     return out
+
+
+def rotvec(rot: np.ndarray) -> np.ndarray:
+    """The rotation vector (axis times angle, rad) of a rotation matrix."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(rot).as_rotvec()
 
 
 def rot_z(angle: float) -> np.ndarray:
@@ -303,13 +317,20 @@ class InsertEnv(BaseEnv):
     def _get_obs_extra(self, info: dict) -> dict:
         return {}
 
+    def grip_correction(self) -> np.ndarray:
+        """``grip`` (6,): the in-hand correction ``C`` of the module docstring (m, rad), float32."""
+        plug_in_tcp = np.linalg.inv(self.tcp_pose()) @ self.plug_pose()
+        tcp_in_plug = pose_matrix(TCP_IN_PLUG_ROT, [0.0, 0.0, self.grip_height])
+        c = np.linalg.inv(tcp_in_plug) @ np.linalg.inv(plug_in_tcp)
+        return np.concatenate([c[:3, 3], rotvec(c[:3, :3])]).astype(np.float32)
+
     def task_obs(self) -> dict[str, np.ndarray]:
-        """The policy's observations (see the module docstring): ``state`` (24,), ``cloud`` (P, 3)."""
+        """The policy's observations (see the module docstring): ``state`` (24,), ``grip`` (6,), ``cloud`` (P, 3)."""
         qpos = self.agent.robot.get_qpos()[0].numpy()[:7]
         tcp = self.agent.tcp.pose.raw_pose[0].numpy()
         target = self._target_obs_pq
         state = np.concatenate([qpos, tcp, target, target[:3] - tcp[:3]]).astype(np.float32)
-        out = {"state": state}
+        out = {"state": state, "grip": self.grip_correction()}
         if self.cloud_points:
             plug, sock = self.plug_pose(), self.socket_world
             cloud = np.concatenate([self._plug_cloud @ plug[:3, :3].T + plug[:3, 3],

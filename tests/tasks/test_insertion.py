@@ -99,6 +99,41 @@ def test_a_plug_shifted_in_the_grip_is_named_a_failure(servo_session):
 
 
 @pytest.mark.sim
+def test_the_grip_observation_shows_how_the_plug_sits_in_the_hand(servo_session):
+    """Near zero for the nominal plug; a plug with a bulged grip sits millimetres off in the fingers, and
+    the grip-aware servo, which corrects its target by it, still inserts the nominal plug."""
+    from grt.evaluators.collision import make_collision
+    from grt.policies.servo import ServoInsertionPolicy
+
+    session, plug, parts = servo_session
+
+    def grip_at_rest(seed: int) -> np.ndarray:
+        session.reset(seed, rebuild=True)
+        for _ in range(10):
+            obs, *_ = session.step(np.zeros(6, np.float32))
+        return obs["grip"]
+
+    nominal = grip_at_rest(3)
+    assert nominal.shape == (6,) and np.abs(nominal[:3]).max() < 2e-3 and np.abs(nominal[3:]).max() < 0.1
+    bent = plug.copy()
+    v = bent.vertices.copy()
+    v[(v[:, 2] > 0.013) & (v[:, 1] > 0), 1] += 0.007
+    bent.vertices = v
+    session.load_object(bent, make_collision("coacd", None, None, None, 64).parts(bent))
+    try:
+        shifted = grip_at_rest(3)
+    finally:
+        session.load_object(plug, parts)
+    assert np.linalg.norm(shifted[:3] - nominal[:3]) > 2e-3, (nominal, shifted)
+    blind = session.policy
+    session.policy = ServoInsertionPolicy(grip=True)
+    try:
+        assert [session.run_trial(s).mode for s in (3, 4)] == ["success"] * 2
+    finally:
+        session.policy = blind
+
+
+@pytest.mark.sim
 @pytest.mark.parametrize("name", ["insertion_state", "insertion_pcd"])
 def test_shipped_checkpoints_load_and_insert(name, servo_session):
     from grt.policies.rsl_rl import RslRlPolicy
