@@ -33,6 +33,7 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     """Run one blue-team study (see the module docstring); returns ``{"rows": [...], ...}``."""
     from grt.blueteam.core import (
         Geometry,
+        check_guard,
         distinct,
         failing_records,
         load_run,
@@ -47,6 +48,7 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     from grt.scores import ScoreSpec
 
     bt = cfg.blueteam
+    check_guard(str(bt.nominal_guard))
     run_dir = Path(cfg.run)
     run_cfg, records = load_run(run_dir)
     task, policy_cfg = _plain(run_cfg.task), _plain(run_cfg.policy)
@@ -74,7 +76,8 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
              [g.name for g in crash], len(heldout))
 
     test_seeds = episode_seeds(int(run_cfg.budget.seed) + 1000, int(bt.eval_trials))
-    val_seeds = episode_seeds(int(run_cfg.budget.seed) + 2000, int(bt.val_trials))
+    val_seeds = episode_seeds(int(run_cfg.budget.seed) + 2000,
+                              max(int(bt.val_trials), int(bt.val_trials_nominal or bt.val_trials)))
     everything = [nominal_geo, *crash, *heldout]
     scores_file = out_dir / "scores.json"
     scores = json.loads(scores_file.read_text()) if scores_file.exists() else {}
@@ -119,6 +122,7 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
     """PPO on the mix (resumable), early-stopped on validation episodes; returns the policy file."""
     import copy
 
+    from grt.blueteam.core import nominal_regressed
     from grt.evaluators.pool import build_session
     from grt.policies.rsl_rl import RslRlPolicy
     from grt.rl.train import export_policy, plot_curve, train
@@ -141,25 +145,34 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
                      workers=cfg.workers, seed=int(bt.seed), weights=weights, max_steps=bt.max_steps)
     session = build_session(task, None)
 
-    guard = out_dir / "val_nominal.json"  # the nominal object's validation score before fine-tuning
-    tolerance = float(bt.nominal_tolerance)
+    guard = out_dir / "val_nominal.json"  # the nominal object's validation episodes before fine-tuning
+    rule = {"guard": str(bt.nominal_guard), "tolerance": float(bt.nominal_tolerance),
+            "alpha": float(bt.nominal_alpha), "binary": str(task.get("score", "success")) == "success"}
+    n_crash, n_nominal = int(bt.val_trials), int(bt.val_trials_nominal or bt.val_trials)
 
     def validate(path: Path) -> float:
-        """The CrashShapes' mean validation score, for a checkpoint that keeps the nominal object within
-        ``nominal_tolerance`` of where it started; one that does not ranks below every one that does."""
+        """The CrashShapes' mean validation score, for a checkpoint whose nominal validation shows no
+        regression from the start (``nominal_guard``); one that does ranks below every one that does not."""
         session.policy = RslRlPolicy(str(path), task=task["name"])
         per = {}
         for g in shapes:
             session.load_object(g.mesh, g.parts)
-            per[g.name] = float(np.mean([session.run_trial(s).score for s in val_seeds]))
+            seeds = val_seeds[:n_nominal] if g.name == "nominal" else val_seeds[:n_crash]
+            per[g.name] = [float(session.run_trial(s).score) for s in seeds]
         if not guard.exists():  # the first validation is of the policy before any update
-            guard.write_text(json.dumps({"nominal": per["nominal"], "tolerance": tolerance}))
-        start = json.loads(guard.read_text())["nominal"]
-        crash = float(np.mean([v for k, v in per.items() if k != "nominal"]))
-        kept = per["nominal"] >= start - tolerance - 1e-9
-        log.info("validation: CrashShapes %.3f, nominal %.3f (start %.3f, %s)", crash, per["nominal"], start,
-                 "kept" if kept else f"more than {tolerance:.2f} lost: ranked below every kept checkpoint")
-        return crash if kept else crash - 2.0
+            guard.write_text(json.dumps({"nominal": float(np.mean(per["nominal"])), "scores": per["nominal"],
+                                         **rule}))
+        start = json.loads(guard.read_text())
+        crash = float(np.mean([np.mean(v) for k, v in per.items() if k != "nominal"]))
+        if "scores" in start:
+            regressed, why = nominal_regressed(start["scores"], per["nominal"], rule["guard"], rule["tolerance"],
+                                               rule["alpha"], rule["binary"])
+        else:  # a fine-tune started before the guard kept its episodes: its fixed tolerance
+            regressed, why = nominal_regressed([start["nominal"]], [float(np.mean(per["nominal"]))], "tolerance",
+                                               float(start.get("tolerance", rule["tolerance"])))
+        log.info("validation: CrashShapes %.3f, nominal %.3f (%s: %s)", crash, float(np.mean(per["nominal"])), why,
+                 "ranked below every kept checkpoint" if regressed else "kept")
+        return crash - 2.0 if regressed else crash
 
     try:
         result = train(env, train_cfg, out_dir, task["name"], task, iterations=int(bt.iterations),

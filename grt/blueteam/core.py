@@ -163,6 +163,41 @@ def distinct(records: list[dict], exclude: list[dict], count: int) -> list[dict]
     return out
 
 
+GUARDS = ("fisher", "tolerance")
+
+
+def check_guard(guard: str) -> None:
+    """Refuse an unknown ``blueteam.nominal_guard`` before any work."""
+    if guard not in GUARDS:
+        raise BlueTeamError(f"blueteam.nominal_guard={guard!r} is not a guard: fisher (refuse a checkpoint whose "
+                            "nominal validation is significantly below the start) or tolerance (refuse one more "
+                            "than blueteam.nominal_tolerance below it)")
+
+
+def nominal_regressed(start: list[float], now: list[float], guard: str = "fisher", tolerance: float = 0.05,
+                      alpha: float = 0.05, binary: bool = True) -> tuple[bool, str]:
+    """Whether a checkpoint's nominal validation episodes show a regression from the start's, and why.
+
+    ``fisher`` (binary scores): the checkpoint's successes are significantly fewer than the start's, by a
+    one-sided Fisher exact test at ``alpha``: a regression is refused on evidence, not on one unlucky
+    episode (measured: a 16-episode validation at 12/16 refused a checkpoint that succeeded on 30 of 32
+    held-out episodes). ``tolerance``, and any continuous score: the mean fell more than ``tolerance``.
+
+    Args:
+        start, now: per-episode scores before fine-tuning and of the checkpoint (success: 0 or 1).
+    """
+    check_guard(guard)
+    mean_start, mean_now = float(np.mean(start)), float(np.mean(now))
+    if guard == "fisher" and binary:
+        from scipy.stats import fisher_exact
+
+        a, b = int(round(sum(start))), int(round(sum(now)))
+        p = float(fisher_exact([[a, len(start) - a], [b, len(now) - b]], alternative="greater").pvalue)
+        return p < alpha, f"{b}/{len(now)} against {a}/{len(start)} at the start, one-sided Fisher p = {p:.3f}"
+    return (mean_start - mean_now > tolerance + 1e-9,
+            f"{mean_now:.3f} against {mean_start:.3f} at the start, tolerance {tolerance:.3f}")
+
+
 def name_of(rec: dict) -> str:
     return f"it{rec['iteration']}_c{rec['candidate']}"
 

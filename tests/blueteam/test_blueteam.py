@@ -13,7 +13,7 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["blueteam.iterations=2", "blueteam.num_envs=2", "blueteam.num_steps_per_env=8", "blueteam.max_steps=16",
-        "blueteam.eval_trials=2", "blueteam.val_trials=1", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
+        "blueteam.eval_trials=2", "blueteam.val_trials=1", "blueteam.val_trials_nominal=2", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
         "blueteam.heldout.nearby=1", "workers=1"]
 
 
@@ -54,7 +54,7 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     policy = RslRlPolicy(str(out_dir / "policy.pt"), task="insertion")
     assert policy.config["blueteam"]["shapes"][0] == "nominal"
     guard = json.loads((out_dir / "val_nominal.json").read_text())  # early stopping's nominal baseline
-    assert 0.0 <= guard["nominal"] <= 1.0 and guard["tolerance"] == 0.05
+    assert 0.0 <= guard["nominal"] <= 1.0 and guard["guard"] == "fisher" and len(guard["scores"]) == 2
     before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
     after = torch.load(out_dir / "last.pt", weights_only=False)["actor_state_dict"]
     assert any(not torch.equal(before[k], after[k]) for k in before), "PPO did not change the policy"
@@ -111,6 +111,22 @@ def test_crashshapes_are_chosen_by_rank_or_by_name():
             select_crashshapes(recs, bad, 3, 0.5, 1.0)
     with pytest.raises(BlueTeamError, match="no CrashShape scoring below"):
         select_crashshapes(recs, "top1", 3, 0.1, 1.0)
+
+
+def test_the_nominal_guard_refuses_a_regression_on_evidence_not_on_one_episode():
+    from grt.blueteam.core import BlueTeamError, nominal_regressed
+
+    start = [1.0] * 16
+    assert not nominal_regressed(start, [1.0] * 12 + [0.0] * 4)[0]  # 12/16 vs 16/16: p = 0.051
+    regressed, why = nominal_regressed(start, [1.0] * 11 + [0.0] * 5)
+    assert regressed and "11/16 against 16/16" in why and "p = 0.022" in why
+    assert nominal_regressed(start, [1.0] * 15 + [0.0], guard="tolerance", tolerance=0.05)[0]  # one episode
+    assert not nominal_regressed(start, [1.0] * 15 + [0.0], guard="tolerance", tolerance=0.07)[0]
+    # a continuous score (the drawer's opening) is judged by the tolerance whatever the guard
+    assert nominal_regressed([0.38] * 8, [0.30] * 8, binary=False, tolerance=0.05)[0]
+    assert not nominal_regressed([0.38] * 8, [0.35] * 8, binary=False, tolerance=0.05)[0]
+    with pytest.raises(BlueTeamError, match="nominal_guard='strict' is not a guard"):
+        nominal_regressed(start, start, guard="strict")
 
 
 @pytest.mark.sim
