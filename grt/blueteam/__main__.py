@@ -122,7 +122,9 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
     """PPO on the mix (resumable), early-stopped on validation episodes; returns the policy file."""
     import copy
 
-    from grt.blueteam.core import nominal_regressed
+    import torch
+
+    from grt.blueteam.core import nominal_regressed, plot_validation
     from grt.evaluators.pool import build_session
     from grt.policies.rsl_rl import RslRlPolicy
     from grt.rl.train import export_policy, plot_curve, train
@@ -149,6 +151,7 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
     rule = {"guard": str(bt.nominal_guard), "tolerance": float(bt.nominal_tolerance),
             "alpha": float(bt.nominal_alpha), "binary": str(task.get("score", "success")) == "success"}
     n_crash, n_nominal = int(bt.val_trials), int(bt.val_trials_nominal or bt.val_trials)
+    detail = out_dir / "validation.jsonl"
 
     def validate(path: Path) -> float:
         """The CrashShapes' mean validation score, for a checkpoint whose nominal validation shows no
@@ -172,6 +175,11 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
                                                float(start.get("tolerance", rule["tolerance"])))
         log.info("validation: CrashShapes %.3f, nominal %.3f (%s: %s)", crash, float(np.mean(per["nominal"])), why,
                  "ranked below every kept checkpoint" if regressed else "kept")
+        iteration = int(torch.load(path, map_location="cpu", weights_only=False).get("iter", -1)) + 1
+        with detail.open("a") as f:  # one row per validation, for validation.png
+            f.write(json.dumps({"iteration": iteration, "nominal": float(np.mean(per["nominal"])),
+                                "crashshapes": {k: float(np.mean(v)) for k, v in per.items() if k != "nominal"},
+                                "regressed": bool(regressed), "why": why}) + "\n")
         return crash - 2.0 if regressed else crash
 
     try:
@@ -188,6 +196,9 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
         env.close()
         session.close()
     plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title="blue-team fine-tune")
+    if detail.exists():
+        rows = [json.loads(line) for line in detail.read_text().splitlines() if line.strip()]
+        plot_validation(rows, out_dir / "validation.png", str(task.get("score", "success")))
     best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
     return export_policy(best, policy_file, metrics={k: v for k, v in result.items() if k != "validation"})
 

@@ -198,6 +198,41 @@ def nominal_regressed(start: list[float], now: list[float], guard: str = "fisher
             f"{mean_now:.3f} against {mean_start:.3f} at the start, tolerance {tolerance:.3f}")
 
 
+def plot_validation(rows: list[dict], dest: str | Path, score_label: str = "success") -> bool:
+    """``validation.png``: each validation's CrashShape scores (each and their mean) and the nominal
+    object's, against the PPO iteration; refused checkpoints (the nominal guard) are marked. Returns
+    whether there was anything to draw.
+
+    Args:
+        rows: ``validation.jsonl`` rows: ``iteration``, ``crashshapes`` ({name: score}), ``nominal``,
+            ``regressed``.
+    """
+    if not rows:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    its = np.array([r["iteration"] for r in rows])
+    fig, ax = plt.subplots(figsize=(7.5, 3.6))
+    for name in rows[0]["crashshapes"]:
+        ax.plot(its, [r["crashshapes"].get(name, np.nan) for r in rows], "-", lw=1, alpha=0.45, label=name)
+    mean = [float(np.mean(list(r["crashshapes"].values()))) for r in rows]
+    ax.plot(its, mean, "o-", lw=2.2, color="tab:red", label="CrashShapes, mean")
+    ax.plot(its, [r["nominal"] for r in rows], "s-", lw=2.2, color="black", label="nominal")
+    bad = np.array([bool(r["regressed"]) for r in rows])
+    if bad.any():
+        ax.plot(its[bad], np.array([r["nominal"] for r in rows])[bad], "x", ms=11, mew=2.5, color="tab:orange",
+                label="refused: nominal regressed")
+    ax.set(xlabel="PPO iteration", ylabel=f"validation {score_label}", title="blue-team validation")
+    ax.legend(fontsize=7, loc="lower right", ncol=2)
+    fig.tight_layout()
+    fig.savefig(dest, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def name_of(rec: dict) -> str:
     return f"it{rec['iteration']}_c{rec['candidate']}"
 

@@ -53,6 +53,7 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     assert (out_dir / "rered" / "summary.json").exists()
     policy = RslRlPolicy(str(out_dir / "policy.pt"), task="insertion")
     assert policy.config["blueteam"]["shapes"][0] == "nominal"
+    assert (out_dir / "validation.png").stat().st_size > 0 and (out_dir / "validation.jsonl").read_text().count("\n") >= 2
     guard = json.loads((out_dir / "val_nominal.json").read_text())  # early stopping's nominal baseline
     assert 0.0 <= guard["nominal"] <= 1.0 and guard["guard"] == "fisher" and len(guard["scores"]) == 2
     before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
@@ -127,6 +128,15 @@ def test_the_nominal_guard_refuses_a_regression_on_evidence_not_on_one_episode()
     assert not nominal_regressed([0.38] * 8, [0.35] * 8, binary=False, tolerance=0.05)[0]
     with pytest.raises(BlueTeamError, match="nominal_guard='strict' is not a guard"):
         nominal_regressed(start, start, guard="strict")
+
+
+def test_validation_picture_marks_refused_checkpoints(tmp_path):
+    from grt.blueteam.core import plot_validation
+
+    rows = [{"iteration": i, "nominal": n, "crashshapes": {"it4_c7": c, "it7_c1": c / 2}, "regressed": r}
+            for i, n, c, r in [(0, 1.0, 0.3, False), (10, 0.6, 0.5, True), (20, 0.9, 0.8, False)]]
+    assert plot_validation(rows, tmp_path / "v.png") and (tmp_path / "v.png").stat().st_size > 1000
+    assert not plot_validation([], tmp_path / "none.png") and not (tmp_path / "none.png").exists()
 
 
 @pytest.mark.sim
