@@ -55,7 +55,8 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
         print(f"collision     the {len(parts)} convex parts the red-team run simulated this shape with "
               f"({parts_dir}); parts=decompose runs CoACD on the file instead", flush=True)
     with make(task=_plain(cfg.task), policy=_plain(cfg.policy), nominal=mesh, render_dir=render_dir) as ev:
-        result = ev.evaluate([mesh], seeds, parts=None if parts is None else [parts])[0]
+        # the base Evaluator interface takes meshes and seeds; the simulator's also takes known parts
+        result = (ev.evaluate([mesh], seeds) if parts is None else ev.evaluate([mesh], seeds, parts=[parts]))[0]
         collision_s = ev.collision_s
     wall = time.perf_counter() - start
     summary = {**result.summary(ci=score.ci), **score.fields(), "object": str(cfg.object),
