@@ -86,10 +86,10 @@ def saved_parts(spec: str, mode: str, scale: float = 1.0) -> tuple[list | None, 
     import numpy as np
     import trimesh
 
-    from grt.evaluators.collision import CollisionError as PartsError
+    from grt.evaluators.collision import CollisionError
 
     if mode not in ("auto", "decompose"):
-        raise PartsError(f"parts={mode!r} is not a setting: parts=auto (use a CrashShape's saved "
+        raise CollisionError(f"parts={mode!r} is not a setting: parts=auto (use a CrashShape's saved "
                          "<stem>_parts folder when there is one) or parts=decompose (run CoACD on the file)")
     path = Path(str(spec))
     folder = path.with_name(f"{path.stem}_parts")
@@ -99,10 +99,10 @@ def saved_parts(spec: str, mode: str, scale: float = 1.0) -> tuple[list | None, 
     try:
         parts = [np.asarray(trimesh.load(f, force="mesh").vertices, np.float64) * float(scale) for f in files]
     except Exception as err:  # noqa: BLE001 - any unreadable file is the same user problem
-        raise PartsError(f"{folder}: a part cannot be read ({type(err).__name__}: {err}); "
+        raise CollisionError(f"{folder}: a part cannot be read ({type(err).__name__}: {err}); "
                          "use parts=decompose to run CoACD on the shape instead") from None
     if not parts or any(len(p) < 4 for p in parts):
-        raise PartsError(f"{folder} holds no usable convex parts; use parts=decompose to run CoACD on the "
+        raise CollisionError(f"{folder} holds no usable convex parts; use parts=decompose to run CoACD on the "
                          "shape instead")
     return parts, folder
 

@@ -12,6 +12,7 @@ plug where the nominal grip puts it: what an in-hand pose estimate buys an analy
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from grt.policies.base import Policy
 
@@ -43,8 +44,6 @@ class ServoInsertionPolicy(Policy):
         state = np.asarray(obs["state"], np.float64)
         tcp_q, target_q, disp = state[:, 10:14], state[:, 17:21], state[:, 21:24]
         if self.grip:
-            from scipy.spatial.transform import Rotation
-
             grip = np.asarray(obs["grip"], np.float64)
             target = Rotation.from_quat(target_q, scalar_first=True)
             disp = disp + target.apply(grip[:, :3])

@@ -49,6 +49,7 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
 from mani_skill.utils.structs.types import SimConfig
 from sapien import physx
+from scipy.spatial.transform import Rotation
 
 from grt.tasks.motion import PandaIK
 from grt.tasks.scene import InMemoryActorBuilder, build_object_actor
@@ -88,8 +89,6 @@ def pose_matrix(rot: np.ndarray, pos) -> np.ndarray:
 
 def rotvec(rot: np.ndarray) -> np.ndarray:
     """The rotation vector (axis times angle, rad) of a rotation matrix."""
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_matrix(rot).as_rotvec()
 
 
