@@ -2,7 +2,9 @@
 
 Writes into its own folder (``outputs/blueteam/<task>/<object>/<time>``): ``policy.pt`` (the
 fine-tuned checkpoint, config inside), ``metrics.csv`` and ``curve.png`` (training),
-``validation.json`` (early stopping), ``scores.json`` (every geometry before and after, per trial),
+``validation.json`` / ``validation.jsonl`` / ``validation.png`` (early stopping), ``confirm.json`` (the
+best validated checkpoints, kept in ``candidates/``, re-scored on fresh episodes; the exported one is
+chosen on validation and confirmation pooled), ``scores.json`` (every geometry before and after, per trial),
 ``table3.json`` / ``table3.md`` (the paper's Table 3 columns plus held-out shapes) and, with
 ``blueteam.rered.enabled``, a re-red-team run of the fine-tuned policy under ``rered/`` with the
 original run's budget and seed. ``resume=<that folder>`` continues a killed fine-tune.
@@ -32,6 +34,7 @@ def _plain(node) -> dict:
 def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
     """Run one blue-team study (see the module docstring); returns ``{"rows": [...], ...}``."""
     from grt.blueteam.core import (
+        BlueTeamError,
         Geometry,
         check_guard,
         distinct,
@@ -49,6 +52,10 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
 
     bt = cfg.blueteam
     check_guard(str(bt.nominal_guard))
+    if int(bt.confirm.candidates) < 0 or (int(bt.confirm.candidates) > 0 and int(bt.confirm.trials) < 1):
+        raise BlueTeamError(f"blueteam.confirm: candidates={bt.confirm.candidates}, trials={bt.confirm.trials} "
+                            "cannot confirm: give candidates >= 1 and trials >= 1, or candidates=0 to export "
+                            "the best validation unconfirmed")
     run_dir = Path(cfg.run)
     run_cfg, records = load_run(run_dir)
     task, policy_cfg = _plain(run_cfg.task), _plain(run_cfg.policy)
@@ -85,7 +92,9 @@ def blueteam(cfg: DictConfig, out_dir: Path) -> dict:
         scores["before"] = _score(task, policy_cfg, everything, test_seeds, cfg.workers)
         scores_file.write_text(json.dumps(scores, indent=1))
 
-    fine_tuned = _fine_tune(cfg, out_dir, task, ckpt, checkpoint, [nominal_geo, *crash], val_seeds)
+    confirm_seeds = episode_seeds(int(run_cfg.budget.seed) + 3000, int(bt.confirm.trials))
+    fine_tuned = _fine_tune(cfg, out_dir, task, policy_cfg, ckpt, checkpoint, [nominal_geo, *crash], val_seeds,
+                            confirm_seeds)
     after_policy = {**policy_cfg, "checkpoint": str(fine_tuned)}
     if "after" not in scores:
         scores["after"] = _score(task, after_policy, everything, test_seeds, cfg.workers)
@@ -118,8 +127,10 @@ def _score(task: dict, policy: dict, geometries, seeds: list[int], workers: int)
                                                                                              strict=True)}
 
 
-def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoint: str, shapes, val_seeds) -> Path:
-    """PPO on the mix (resumable), early-stopped on validation episodes; returns the policy file."""
+def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: dict, checkpoint: str, shapes,
+               val_seeds: list[int], confirm_seeds: list[int]) -> Path:
+    """PPO on the mix (resumable), early-stopped on validation episodes, the best validated checkpoints
+    confirmed on fresh episodes; returns the policy file."""
     import copy
 
     import torch
@@ -176,10 +187,11 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
         log.info("validation: CrashShapes %.3f, nominal %.3f (%s: %s)", crash, float(np.mean(per["nominal"])), why,
                  "ranked below every kept checkpoint" if regressed else "kept")
         iteration = int(torch.load(path, map_location="cpu", weights_only=False).get("iter", -1)) + 1
-        with detail.open("a") as f:  # one row per validation, for validation.png
+        with detail.open("a") as f:  # one row per validation, for validation.png and the confirmation
             f.write(json.dumps({"iteration": iteration, "nominal": float(np.mean(per["nominal"])),
                                 "crashshapes": {k: float(np.mean(v)) for k, v in per.items() if k != "nominal"},
-                                "regressed": bool(regressed), "why": why}) + "\n")
+                                "regressed": bool(regressed), "why": why, "episodes": per}) + "\n")
+        _keep_candidate(out_dir, path, iteration, int(bt.confirm.candidates))
         return crash - 2.0 if regressed else crash
 
     try:
@@ -199,8 +211,92 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, ckpt: dict, checkpoin
     if detail.exists():
         rows = [json.loads(line) for line in detail.read_text().splitlines() if line.strip()]
         plot_validation(rows, out_dir / "validation.png", str(task.get("score", "success")))
-    best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
+    best = _confirm(cfg, out_dir, task, policy, shapes, rule, confirm_seeds)
+    if best is None:  # no confirmation asked for (confirm.candidates=0), or nothing validated
+        best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
     return export_policy(best, policy_file, metrics={k: v for k, v in result.items() if k != "validation"})
+
+
+def _keep_candidate(out_dir: Path, path: Path, iteration: int, keep: int) -> None:
+    """Keep the checkpoint just validated as ``candidates/it<N>.pt`` while it ranks among the ``keep``
+    best validated ones (see :func:`grt.blueteam.core.rank_candidates`); drop those it displaces."""
+    import shutil
+
+    from grt.blueteam.core import rank_candidates
+
+    if keep <= 0:
+        return
+    rows = [json.loads(line) for line in (out_dir / "validation.jsonl").read_text().splitlines() if line.strip()]
+    top = {f"it{r['iteration']}.pt" for r in rank_candidates(rows, keep)}
+    folder = out_dir / "candidates"
+    folder.mkdir(exist_ok=True)
+    if f"it{iteration}.pt" in top:
+        shutil.copyfile(path, folder / f"it{iteration}.pt")
+    for f in folder.glob("it*.pt"):
+        if f.name not in top:
+            f.unlink()
+
+
+def _confirm(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, shapes, rule: dict,
+             seeds: list[int]) -> Path | None:
+    """Re-score the best validated checkpoints on fresh episodes and choose among them on validation and
+    confirmation pooled (:func:`grt.blueteam.core.choose_confirmed`); writes ``confirm.json`` and
+    returns the chosen checkpoint (``None``: nothing to confirm). Resumable: episodes already scored
+    are kept in ``confirm.json``."""
+    from grt.blueteam.core import choose_confirmed, rank_candidates
+
+    bt = cfg.blueteam
+    detail = out_dir / "validation.jsonl"
+    if int(bt.confirm.candidates) <= 0 or not detail.exists():
+        return None
+    rows = [json.loads(line) for line in detail.read_text().splitlines() if line.strip()]
+    top = [r for r in rank_candidates(rows, int(bt.confirm.candidates))
+           if "episodes" in r and (out_dir / "candidates" / f"it{r['iteration']}.pt").exists()]
+    if not top:
+        return None
+    state_file = out_dir / "confirm.json"
+    state = json.loads(state_file.read_text()) if state_file.exists() else {}
+    fresh = state.setdefault("episodes", {})
+    nominal = [g for g in shapes if g.name == "nominal"]
+    if "start" not in fresh:  # the policy before fine-tuning on the same fresh nominal episodes
+        fresh["start"] = _episodes(task, policy, nominal, seeds, cfg.workers)
+        state_file.write_text(json.dumps(state, indent=1))
+    for r in top:
+        key = f"it{r['iteration']}"
+        if key not in fresh:
+            log.info("confirming the checkpoint of iteration %d on %d fresh episodes", r["iteration"], len(seeds))
+            fresh[key] = _episodes(task, {**policy, "checkpoint": str(out_dir / "candidates" / f"{key}.pt")},
+                                   shapes, seeds, cfg.workers)
+            state_file.write_text(json.dumps(state, indent=1))
+    start = json.loads((out_dir / "val_nominal.json").read_text())
+    pooled = [{"iteration": r["iteration"], "nominal": r["episodes"]["nominal"] + fresh[f"it{r['iteration']}"]["nominal"],
+               "crashshapes": {k: v + fresh[f"it{r['iteration']}"][k] for k, v in r["episodes"].items()
+                               if k != "nominal"}} for r in top]
+    pick, table = choose_confirmed(pooled, start["scores"] + fresh["start"]["nominal"], rule["guard"],
+                                   rule["tolerance"], rule["alpha"], rule["binary"])
+    for r, t in zip(top, table, strict=True):
+        t["validation"] = {"nominal": r["nominal"], "crashshapes": r["crashshapes"]}
+    state.update({"seeds": seeds, "candidates": table, "chosen": table[pick]["iteration"]})
+    state_file.write_text(json.dumps(state, indent=1))
+    for t in table:
+        log.info("confirmation, iteration %d: CrashShapes %.3f, nominal %.3f on validation + fresh episodes "
+                 "(%s)%s", t["iteration"], t["crashshape_mean"], t["nominal"], t["why"],
+                 ": chosen" if t["chosen"] else "")
+    if not table[pick]["passed"]:
+        log.warning("no validated checkpoint holds the nominal object on fresh episodes: iteration %d, the best "
+                    "on the nominal object, is exported (confirm.json)", table[pick]["iteration"])
+    return out_dir / "candidates" / f"it{table[pick]['iteration']}.pt"
+
+
+def _episodes(task: dict, policy: dict, geometries, seeds: list[int], workers: int) -> dict[str, list[float]]:
+    """Each geometry's per-episode scores on ``seeds`` (simulator errors left out)."""
+    from grt.evaluators.base import SIM_ERROR
+    from grt.evaluators.sim import SimEvaluator
+
+    with SimEvaluator(task=task, policy=policy, workers=workers, collision="coacd", progress=True) as ev:
+        results = ev.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries])
+    return {g.name: [float(t.score) for t in r.trials if t.mode != SIM_ERROR]
+            for g, r in zip(geometries, results, strict=True)}
 
 
 def _rered(run_cfg: DictConfig, run_dir: Path, checkpoint: Path, out: Path) -> dict:

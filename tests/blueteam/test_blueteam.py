@@ -14,7 +14,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["blueteam.iterations=2", "blueteam.num_envs=2", "blueteam.num_steps_per_env=8", "blueteam.max_steps=16",
         "blueteam.eval_trials=2", "blueteam.val_trials=1", "blueteam.val_trials_nominal=2", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
-        "blueteam.heldout.nearby=1", "workers=1"]
+        "blueteam.heldout.nearby=1", "blueteam.confirm.candidates=2", "blueteam.confirm.trials=2", "workers=1"]
 
 
 def _cli(module: str, *args: str, timeout: float = 900):
@@ -54,6 +54,11 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     policy = RslRlPolicy(str(out_dir / "policy.pt"), task="insertion")
     assert policy.config["blueteam"]["shapes"][0] == "nominal"
     assert (out_dir / "validation.png").stat().st_size > 0 and (out_dir / "validation.jsonl").read_text().count("\n") >= 2
+    confirm = json.loads((out_dir / "confirm.json").read_text())  # the best 2 validations on 2 fresh episodes
+    assert len(confirm["candidates"]) == 2 and sum(c["chosen"] for c in confirm["candidates"]) == 1
+    assert len(confirm["episodes"]["start"]["nominal"]) == 2 and sorted((out_dir / "candidates").iterdir())
+    assert all(c["nominal_episodes"] == 4 for c in confirm["candidates"])  # 2 validation + 2 fresh, pooled
+    assert torch.load(out_dir / "policy.pt", weights_only=False)["iter"] + 1 == confirm["chosen"]  # exported
     guard = json.loads((out_dir / "val_nominal.json").read_text())  # early stopping's nominal baseline
     assert 0.0 <= guard["nominal"] <= 1.0 and guard["guard"] == "fisher" and len(guard["scores"]) == 2
     before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
@@ -128,6 +133,39 @@ def test_the_nominal_guard_refuses_a_regression_on_evidence_not_on_one_episode()
     assert not nominal_regressed([0.38] * 8, [0.35] * 8, binary=False, tolerance=0.05)[0]
     with pytest.raises(BlueTeamError, match="nominal_guard='strict' is not a guard"):
         nominal_regressed(start, start, guard="strict")
+
+
+def test_the_kept_checkpoints_are_the_best_validations_the_guard_let_through():
+    from grt.blueteam.core import rank_candidates
+
+    row = lambda it, c, n, bad=False: {"iteration": it, "crashshapes": {"a": c, "b": c}, "nominal": n,  # noqa: E731
+                                       "regressed": bad}
+    rows = [row(0, 0.3, 1.0), row(10, 0.9, 0.7, True), row(20, 0.6, 0.9), row(30, 0.6, 1.0), row(40, 0.6, 1.0),
+            row(50, 0.5, 1.0), row(50, 0.2, 1.0)]  # iteration 50 validated again after a resume: its last row
+    assert [r["iteration"] for r in rank_candidates(rows, 3)] == [40, 30, 20]  # ties: nominal, then later
+    assert [r["iteration"] for r in rank_candidates(rows, 9)] == [40, 30, 20, 0, 50]  # the refused one never
+    assert rank_candidates(rows, 0) == []
+
+
+def test_confirmation_pools_fresh_episodes_and_refuses_a_lucky_validation():
+    from grt.blueteam.core import choose_confirmed
+
+    start = [1.0] * 64  # 32 validation + 32 fresh nominal episodes of the policy before fine-tuning
+    # the best validation (31/32 nominal, CrashShapes 0.81) fails 7 of 32 fresh nominal episodes: refused on
+    # the pooled 56/64; the runner-up holds the nominal object and is chosen
+    lucky = {"iteration": 170, "nominal": [1.0] * 31 + [0.0] + [1.0] * 25 + [0.0] * 7,
+             "crashshapes": {"a": [1.0] * 13 + [0.0] * 3 + [1.0] * 24 + [0.0] * 8}}
+    steady = {"iteration": 90, "nominal": [1.0] * 30 + [0.0] * 2 + [1.0] * 31 + [0.0],
+              "crashshapes": {"a": [1.0] * 12 + [0.0] * 4 + [1.0] * 22 + [0.0] * 10}}
+    pick, rows = choose_confirmed([lucky, steady], start)
+    assert pick == 1 and [r["chosen"] for r in rows] == [False, True]
+    assert not rows[0]["passed"] and "56/64 against 64/64" in rows[0]["why"] and rows[1]["passed"]
+    assert rows[1]["nominal_episodes"] == 64 and rows[1]["crashshape_mean"] == pytest.approx(34 / 48)
+    # no candidate holds the nominal object: the best on it is exported, marked as not passing
+    pick, rows = choose_confirmed([lucky, {**steady, "nominal": [1.0] * 40 + [0.0] * 24}], start)
+    assert pick == 0 and not any(r["passed"] for r in rows) and rows[0]["chosen"]
+    with pytest.raises(ValueError, match="no candidate"):
+        choose_confirmed([], start)
 
 
 def test_validation_picture_marks_refused_checkpoints(tmp_path):
