@@ -136,8 +136,7 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
     import torch
 
     from grt.blueteam.core import nominal_regressed, plot_validation
-    from grt.evaluators.pool import build_session
-    from grt.policies.rsl_rl import RslRlPolicy
+    from grt.evaluators.sim import SimEvaluator
     from grt.rl.train import export_policy, plot_curve, train
     from grt.rl.vec_env import Shape, TaskVecEnv
 
@@ -156,7 +155,8 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
     weights = [share] + [(1.0 - share) / (len(shapes) - 1)] * (len(shapes) - 1)
     env = TaskVecEnv(task, [Shape.of(g.mesh, g.parts, g.name) for g in shapes], num_envs=bt.num_envs,
                      workers=cfg.workers, seed=int(bt.seed), weights=weights, max_steps=bt.max_steps)
-    session = build_session(task, None)
+    # validation episodes run on their own workers (idle while PPO collects), two at a time on 2 cores
+    evaluator = SimEvaluator(task=task, policy=policy, workers=cfg.workers, collision="coacd", progress=False)
 
     guard = out_dir / "val_nominal.json"  # the nominal object's validation episodes before fine-tuning
     rule = {"guard": str(bt.nominal_guard), "tolerance": float(bt.nominal_tolerance),
@@ -167,12 +167,9 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
     def validate(path: Path) -> float:
         """The CrashShapes' mean validation score, for a checkpoint whose nominal validation shows no
         regression from the start (``nominal_guard``); one that does ranks below every one that does not."""
-        session.policy = RslRlPolicy(str(path), task=task["name"])
-        per = {}
-        for g in shapes:
-            session.load_object(g.mesh, g.parts)
-            seeds = val_seeds[:n_nominal] if g.name == "nominal" else val_seeds[:n_crash]
-            per[g.name] = [float(session.run_trial(s).score) for s in seeds]
+        checkpoint_now = {**policy, "checkpoint": str(path)}  # the workers swap in each checkpoint
+        per = _episodes(task, checkpoint_now, shapes[:1], val_seeds[:n_nominal], cfg.workers, evaluator)
+        per.update(_episodes(task, checkpoint_now, shapes[1:], val_seeds[:n_crash], cfg.workers, evaluator))
         if not guard.exists():  # the first validation is of the policy before any update
             guard.write_text(json.dumps({"nominal": float(np.mean(per["nominal"])), "scores": per["nominal"],
                                          **rule}))
@@ -206,7 +203,7 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
                        val_perfect=1.0 if str(task.get("score", "success")) == "success" else None)
     finally:
         env.close()
-        session.close()
+        evaluator.close()
     plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title="blue-team fine-tune")
     if detail.exists():
         rows = [json.loads(line) for line in detail.read_text().splitlines() if line.strip()]
@@ -288,13 +285,23 @@ def _confirm(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, shapes, r
     return out_dir / "candidates" / f"it{table[pick]['iteration']}.pt"
 
 
-def _episodes(task: dict, policy: dict, geometries, seeds: list[int], workers: int) -> dict[str, list[float]]:
-    """Each geometry's per-episode scores on ``seeds`` (simulator errors left out)."""
+def _episodes(task: dict, policy: dict, geometries, seeds: list[int], workers: int,
+              evaluator=None) -> dict[str, list[float]]:
+    """Each geometry's per-episode scores on ``seeds`` (simulator errors left out), on ``evaluator``'s
+    workers with ``policy`` swapped in, or on a pool of its own."""
     from grt.evaluators.base import SIM_ERROR
     from grt.evaluators.sim import SimEvaluator
 
-    with SimEvaluator(task=task, policy=policy, workers=workers, collision="coacd", progress=True) as ev:
-        results = ev.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries])
+    if evaluator is not None:
+        results = evaluator.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries],
+                                     policy=policy)
+    else:
+        with SimEvaluator(task=task, policy=policy, workers=workers, collision="coacd", progress=True) as ev:
+            results = ev.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries])
+    errors = sum(r.sim_errors for r in results)
+    if errors:
+        log.warning("%d of %d episodes ended in a simulator error and are left out", errors,
+                    len(seeds) * len(geometries))
     return {g.name: [float(t.score) for t in r.trials if t.mode != SIM_ERROR]
             for g, r in zip(geometries, results, strict=True)}
 

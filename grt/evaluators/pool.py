@@ -45,6 +45,8 @@ class Job:
         parts: convex collision parts, each ``(K, 3)`` (m).
         seeds: the episode seeds still to run, in order.
         render_dir: folder for one picture per trial, or ``None``.
+        policy: a policy config to run these trials with instead of the pool's own (``None``: the pool's);
+            the worker re-instantiates it only when it or its checkpoint file changed.
     """
 
     job_id: int
@@ -55,6 +57,7 @@ class Job:
     seeds: list[int]
     render_dir: str | None = None
     metadata: dict = field(default_factory=dict)
+    policy: dict | None = None
 
 
 def sim_error(seed: int, reason: str, **info) -> TrialOutcome:
@@ -85,17 +88,20 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
     gc.collect()
     gc.freeze()  # ManiSkill's reconfigure runs gc.collect(): keep the long-lived heap out of it
     conn.send(("ready", None))
+    using = {"key": None, "own": policy}  # key: the swapped-in policy (None: the pool's own)
     try:
         while (job := conn.recv()) is not None:
-            _run_job(session, job, conn)
+            _run_job(session, job, conn, using)
     finally:
         session.close()
 
 
-def _run_job(session, job: Job, conn: Connection) -> None:
+def _run_job(session, job: Job, conn: Connection, using: dict | None = None) -> None:
     mesh = trimesh.Trimesh(job.vertices, job.faces, process=False, metadata=dict(job.metadata))
     start = time.perf_counter()  # the first trial's time includes loading the object
-    load_error = _load(session, mesh, job.parts)
+    load_error = _use_policy(session, job.policy, using) if using is not None else None
+    if load_error is None:
+        load_error = _load(session, mesh, job.parts)
     if load_error is None and hasattr(session, "prefetch"):
         try:  # batched planning (a grasp network over several trials' clouds at once)
             session.prefetch(job.seeds)
@@ -118,6 +124,35 @@ def _run_job(session, job: Job, conn: Connection) -> None:
         conn.send(("trial", (job.job_id, int(seed), outcome, now - start)))
         start = now
     conn.send(("done", job.job_id))
+
+
+def _use_policy(session, policy: dict | None, using: dict) -> str | None:
+    """Give the session the job's policy when it differs from the one it has (by config, and by the
+    checkpoint file's modification time: a file rewritten in place is a new policy); a job without
+    one gets the pool's own policy back."""
+    import hydra.utils
+
+    if policy is None:
+        if using["key"] is None:
+            return None
+        policy = using["own"]
+
+    ckpt = policy.get("checkpoint")
+    stamp = os.stat(ckpt).st_mtime_ns if isinstance(ckpt, str) and os.path.exists(ckpt) else None
+    key = (repr(sorted(policy.items())), stamp)
+    if key == using["key"]:
+        return None
+    try:
+        made = hydra.utils.instantiate(policy)
+        if hasattr(session, "set_policy"):
+            session.set_policy(made)
+        else:
+            session.policy = made
+    except Exception as exc:
+        using["key"] = "failed"  # whatever the session holds now, the next job sets it again
+        return f"policy failed: {type(exc).__name__}: {exc}"
+    using["key"] = None if policy is using["own"] else key
+    return None
 
 
 def _load(session, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> str | None:

@@ -70,10 +70,12 @@ class SimEvaluator(Evaluator):
 
     # ------------------------------------------------------------------------------- interface
     def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int],
-                 parts: list[list[np.ndarray]] | None = None) -> list[CandidateResult]:
+                 parts: list[list[np.ndarray]] | None = None, policy: dict | None = None) -> list[CandidateResult]:
         """Score every mesh on the same seeds; see :meth:`grt.evaluators.base.Evaluator.evaluate`.
 
         ``parts`` gives each mesh's convex parts when the caller already has them (else they are made).
+        ``policy``: another policy config to score with on the same workers (e.g. each checkpoint of a
+        fine-tune in turn; the workers keep their simulator and swap only the policy).
         """
         seeds = [int(s) for s in seeds]
         if not seeds:
@@ -84,6 +86,8 @@ class SimEvaluator(Evaluator):
             raise ValueError(f"parts must give one list per mesh ({len(meshes)}), got {len(parts)}")
         parts, errors = self._collision_parts(meshes) if parts is None else (list(parts), {})
         jobs = self._jobs(meshes, parts, seeds)
+        for job in jobs:
+            job.policy = policy
         trials: list[dict[int, TrialOutcome]] = [{} for _ in meshes]
         wall = np.zeros(len(meshes))
         for i, reason in errors.items():

@@ -145,6 +145,11 @@ class EpisodeSession(TaskSession):
         self.policy, self.max_steps, self.rebuild_each_trial = policy, int(max_steps), bool(rebuild_each_trial)
         self.steps = 0
 
+    def set_policy(self, policy) -> None:
+        """Run the next trials with ``policy`` (checked against this task's observations and actions)."""
+        self.policy = policy
+        self._check_policy()
+
     def _check_policy(self) -> None:
         """Refuse a policy that declares a different task or observation (see :func:`grt.tasks.check_policy`)."""
         check = getattr(self.policy, "check", None)

@@ -88,3 +88,18 @@ def test_configs_must_be_plain_dicts(u_mesh):
 
     with pytest.raises(ValueError, match="plain dict"):
         SimEvaluator(OmegaConf.create({"session": {}}), {}, nominal=u_mesh)
+
+
+def test_the_workers_swap_in_another_policy_for_one_call_and_give_their_own_back(toy_configs, u_mesh, reference,
+                                                                                  cache_dir):
+    task, policy = toy_configs()
+    strict = {**policy, "fill": 0.99}  # no seed fills its bar: every trial fails under this policy
+    with SimEvaluator(task, policy, workers=2, collision="fast", nominal=u_mesh, progress=False,
+                      cache_dir=str(cache_dir)) as ev:
+        (swapped,) = ev.evaluate([u_mesh], SEEDS, policy=strict)
+        (again,) = ev.evaluate([u_mesh], SEEDS, policy=strict)
+        (own,) = ev.evaluate([u_mesh], SEEDS)  # no policy given: the pool's own, on the same workers
+        (broken,) = ev.evaluate([u_mesh], SEEDS, policy={**policy, "_target_": "no.such.Policy"})
+    assert reference[0].score > 0 and swapped.score == again.score == 0.0
+    assert _modes([own]) == _modes(reference[:1])
+    assert all(t.mode == "sim_error" and "policy failed" in t.info["error"] for t in broken.trials)
