@@ -155,6 +155,7 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
     weights = [share] + [(1.0 - share) / (len(shapes) - 1)] * (len(shapes) - 1)
     env = TaskVecEnv(task, [Shape.of(g.mesh, g.parts, g.name) for g in shapes], num_envs=bt.num_envs,
                      workers=cfg.workers, seed=int(bt.seed), weights=weights, max_steps=bt.max_steps)
+    anchor = _anchor(cfg, task, checkpoint, shapes[0])
     # validation episodes run on their own workers (idle while PPO collects), two at a time on 2 cores
     evaluator = SimEvaluator(task=task, policy=policy, workers=cfg.workers, collision="coacd", progress=False)
 
@@ -200,7 +201,8 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
                               "blueteam": {"from": checkpoint, "shapes": [g.name for g in shapes],
                                            "weights": weights}},
                        validate=validate, val_interval=int(bt.val_interval), val_patience=int(bt.val_patience),
-                       val_perfect=1.0 if str(task.get("score", "success")) == "success" else None)
+                       val_perfect=1.0 if str(task.get("score", "success")) == "success" else None,
+                       anchor=anchor)
     finally:
         env.close()
         evaluator.close()
@@ -212,6 +214,29 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
     if best is None:  # no confirmation asked for (confirm.candidates=0), or nothing validated
         best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
     return export_policy(best, policy_file, metrics={k: v for k, v in result.items() if k != "validation"})
+
+
+def _anchor(cfg: DictConfig, task: dict, checkpoint: str, nominal):
+    """The starting policy's actions on its own nominal-object states (``blueteam.anchor``; ``None``: off)."""
+    from grt.policies.rsl_rl import RslRlPolicy
+    from grt.rl.anchor import NominalAnchor
+    from grt.rl.vec_env import Shape, TaskVecEnv
+
+    a = cfg.blueteam.anchor
+    if int(a.updates) <= 0:
+        return None
+    reference = RslRlPolicy(checkpoint, task=task["name"]).actor  # the policy before fine-tuning, on resume too
+    env = TaskVecEnv(task, [Shape.of(nominal.mesh, nominal.parts, nominal.name)], num_envs=int(a.envs),
+                     workers=cfg.workers, seed=int(cfg.blueteam.seed) + 1, max_steps=cfg.blueteam.max_steps)
+    try:
+        anchor = NominalAnchor.record(reference, env, steps=int(a.steps), noise=float(a.noise),
+                                      seed=int(cfg.blueteam.seed), updates=int(a.updates),
+                                      lr=float(cfg.blueteam.algorithm.learning_rate))
+    finally:
+        env.close()
+    log.info("anchor: %d nominal states of the starting policy, %d steps per PPO iteration", len(anchor.targets),
+             anchor.updates)
+    return anchor
 
 
 def _keep_candidate(out_dir: Path, path: Path, iteration: int, keep: int) -> None:
@@ -253,6 +278,8 @@ def _confirm(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, shapes, r
         return None
     state_file = out_dir / "confirm.json"
     state = json.loads(state_file.read_text()) if state_file.exists() else {}
+    if state.get("seeds") != seeds:  # other fresh episodes (confirm.trials changed): score them anew
+        state = {"seeds": seeds}
     fresh = state.setdefault("episodes", {})
     nominal = [g for g in shapes if g.name == "nominal"]
     if "start" not in fresh:  # the policy before fine-tuning on the same fresh nominal episodes

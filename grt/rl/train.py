@@ -27,7 +27,7 @@ from grt.rl.vec_env import TaskVecEnv
 
 log = logging.getLogger(__name__)
 FIELDS = ["iteration", "steps", "success_rate", "episodes", "mean_return", "episode_steps", "value_loss",
-          "surrogate_loss", "entropy", "action_std", "learning_rate", "iteration_s"]
+          "surrogate_loss", "entropy", "action_std", "learning_rate", "iteration_s", "anchor_mse"]
 
 
 def grt_config(task_name: str, env: TaskVecEnv, train_cfg: dict, task_cfg: dict, extra: dict | None = None) -> dict:
@@ -48,7 +48,8 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
           iterations: int, init_checkpoint: str | None = None, save_interval: int = 10,
           target_success: float | None = None, patience: int = 20, extra: dict | None = None,
           on_iteration=None, expert=None, bc: dict | None = None, validate=None, val_interval: int = 10,
-          val_patience: int = 3, val_perfect: float | None = 1.0, val_tie: float | None = None) -> dict:
+          val_patience: int = 3, val_perfect: float | None = 1.0, val_tie: float | None = None,
+          anchor=None) -> dict:
     """Train (or resume) a PPO policy; returns ``{"iterations", "steps", "best_success", "wall_s", ...}``.
 
     Args:
@@ -73,6 +74,8 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
             continuous score has no perfect value, e.g. a drawer opening). ``val_tie``: a later
             checkpoint within this much of the best replaces ``val_best.pt`` (the validation cannot tell
             them apart: the more trained one is kept), though it does not count as a gain.
+        anchor: a :class:`grt.rl.anchor.NominalAnchor`, stepped after each PPO iteration (its error is
+            the ``anchor_mse`` column).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -121,8 +124,10 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
             t0 = time.perf_counter()
             runner.current_learning_iteration = it
             runner.learn(1)
+            drift = anchor.step(runner.alg.get_policy()) if anchor is not None else float("nan")
             ended = env.episodes[before:]
             row = _row(it, steps_per_it, ended, runner, time.perf_counter() - t0)
+            row["anchor_mse"] = drift
             rows.append(row)
             _write_rows(metrics_path, rows)
             recent.append(ended)
@@ -282,7 +287,7 @@ def _read_rows(path: Path, upto: int) -> list[dict]:
 def _write_rows(path: Path, rows: list[dict]) -> None:
     tmp = path.with_suffix(".tmp")
     with tmp.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")  # rows of an older layout resume too
+        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore", restval="nan")  # rows of an older layout resume too
         w.writeheader()
         w.writerows(rows)
     tmp.replace(path)

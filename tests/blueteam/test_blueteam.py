@@ -14,7 +14,8 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ["blueteam.iterations=2", "blueteam.num_envs=2", "blueteam.num_steps_per_env=8", "blueteam.max_steps=16",
         "blueteam.eval_trials=2", "blueteam.val_trials=1", "blueteam.val_trials_nominal=2", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
-        "blueteam.heldout.nearby=1", "blueteam.confirm.candidates=2", "blueteam.confirm.trials=2", "workers=1"]
+        "blueteam.heldout.nearby=1", "blueteam.confirm.candidates=2", "blueteam.confirm.trials=2",
+        "blueteam.anchor.envs=2", "blueteam.anchor.steps=4", "workers=1"]
 
 
 def _cli(module: str, *args: str, timeout: float = 900):
@@ -64,6 +65,9 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     before = torch.load(ROOT / "grt/policies/checkpoints/insertion_state.pt", weights_only=False)["actor_state_dict"]
     after = torch.load(out_dir / "last.pt", weights_only=False)["actor_state_dict"]
     assert any(not torch.equal(before[k], after[k]) for k in before), "PPO did not change the policy"
+    header, *rows = (out_dir / "metrics.csv").read_text().splitlines()  # the nominal anchor pulled every iteration
+    assert header.endswith("anchor_mse") and all(float(r.split(",")[-1]) >= 0 for r in rows)
+    assert "anchor: 8 nominal states of the starting policy" in res.stderr + res.stdout
     normalizer = [k for k in before if k.startswith("obs_normalizer.")]  # frozen: the inputs stay as trained
     assert normalizer and all(torch.equal(before[k], after[k]) for k in normalizer)
     # A fine-tune killed before it finished: resume continues from last.pt, repeats no iteration.
