@@ -207,12 +207,13 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
         env.close()
         evaluator.close()
     plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title="blue-team fine-tune")
-    if detail.exists():
-        rows = [json.loads(line) for line in detail.read_text().splitlines() if line.strip()]
-        plot_validation(rows, out_dir / "validation.png", str(task.get("score", "success")))
     best = _confirm(cfg, out_dir, task, policy, shapes, rule, confirm_seeds)
     if best is None:  # no confirmation asked for (confirm.candidates=0), or nothing validated
         best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
+    if detail.exists():
+        rows = [json.loads(line) for line in detail.read_text().splitlines() if line.strip()]
+        chosen = int(torch.load(best, map_location="cpu", weights_only=False).get("iter", -2)) + 1
+        plot_validation(rows, out_dir / "validation.png", str(task.get("score", "success")), chosen)
     return export_policy(best, policy_file, metrics={k: v for k, v in result.items() if k != "validation"})
 
 

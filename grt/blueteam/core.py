@@ -249,7 +249,8 @@ def choose_confirmed(candidates: list[dict], start: list[float], guard: str = "f
     return pick, rows
 
 
-def plot_validation(rows: list[dict], dest: str | Path, score_label: str = "success") -> bool:
+def plot_validation(rows: list[dict], dest: str | Path, score_label: str = "success",
+                    chosen: int | None = None) -> bool:
     """``validation.png``: each validation's CrashShape scores (each and their mean) and the nominal
     object's, against the PPO iteration; refused checkpoints (the nominal guard) are marked. Returns
     whether there was anything to draw.
@@ -257,6 +258,7 @@ def plot_validation(rows: list[dict], dest: str | Path, score_label: str = "succ
     Args:
         rows: ``validation.jsonl`` rows: ``iteration``, ``crashshapes`` ({name: score}), ``nominal``,
             ``regressed``.
+        chosen: the iteration of the exported checkpoint (after confirmation), marked with a star.
     """
     if not rows:
         return False
@@ -276,6 +278,9 @@ def plot_validation(rows: list[dict], dest: str | Path, score_label: str = "succ
     if bad.any():
         ax.plot(its[bad], np.array([r["nominal"] for r in rows])[bad], "x", ms=11, mew=2.5, color="tab:orange",
                 label="refused: nominal regressed")
+    if chosen is not None and chosen in set(its.tolist()):
+        at = int(np.flatnonzero(its == chosen)[-1])
+        ax.plot([chosen], [mean[at]], "*", ms=18, color="gold", mec="black", label="exported, after confirmation")
     ax.set(xlabel="PPO iteration", ylabel=f"validation {score_label}", title="blue-team validation")
     ax.legend(fontsize=7, loc="lower right", ncol=2)
     fig.tight_layout()

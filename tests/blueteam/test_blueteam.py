@@ -178,6 +178,7 @@ def test_validation_picture_marks_refused_checkpoints(tmp_path):
     rows = [{"iteration": i, "nominal": n, "crashshapes": {"it4_c7": c, "it7_c1": c / 2}, "regressed": r}
             for i, n, c, r in [(0, 1.0, 0.3, False), (10, 0.6, 0.5, True), (20, 0.9, 0.8, False)]]
     assert plot_validation(rows, tmp_path / "v.png") and (tmp_path / "v.png").stat().st_size > 1000
+    assert plot_validation(rows, tmp_path / "star.png", chosen=20)  # the exported checkpoint, starred
     assert not plot_validation([], tmp_path / "none.png") and not (tmp_path / "none.png").exists()
 
 
