@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 TINY = ["blueteam.iterations=2", "blueteam.num_envs=2", "blueteam.num_steps_per_env=8", "blueteam.max_steps=16",
         "blueteam.eval_trials=2", "blueteam.val_trials=1", "blueteam.val_trials_nominal=2", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
         "blueteam.heldout.nearby=1", "blueteam.confirm.candidates=2", "blueteam.confirm.trials=2",
-        "blueteam.anchor.envs=2", "blueteam.anchor.steps=4", "workers=1"]
+        "blueteam.anchor.updates=2", "blueteam.anchor.envs=2", "blueteam.anchor.steps=4", "workers=1"]
 
 
 def _cli(module: str, *args: str, timeout: float = 900):
