@@ -8,6 +8,13 @@ before fine-tuning visits on the nominal object (its own rollouts, its actions p
 the states around its path are covered) are recorded once with that policy's mean actions; after each
 PPO iteration a few gradient steps pull the actor's mean action on those states back toward them.
 States of the CrashShapes are not in the set, so the actor stays free to act differently there.
+
+Measured (joint fine-tune of the point-cloud insertion policy on 3 CrashShapes): with 8 steps per
+iteration the nominal validation stayed at 32/32 and the CrashShapes at 0.27-0.40 (0.33 before) for
+60 iterations; with 2 steps the same, up to 0.46 at iteration 100 and back to 0.31-0.44, and the
+exported checkpoint scored the CrashShapes as before. The states that matter to the CrashShapes are
+close to the nominal ones for this policy, so holding one holds the other. It is off by default
+(``blueteam.anchor.updates=0``).
 """
 
 from __future__ import annotations
