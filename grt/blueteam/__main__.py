@@ -169,8 +169,8 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
         """The CrashShapes' mean validation score, for a checkpoint whose nominal validation shows no
         regression from the start (``nominal_guard``); one that does ranks below every one that does not."""
         checkpoint_now = {**policy, "checkpoint": str(path)}  # the workers swap in each checkpoint
-        per = _episodes(task, checkpoint_now, shapes[:1], val_seeds[:n_nominal], cfg.workers, evaluator)
-        per.update(_episodes(task, checkpoint_now, shapes[1:], val_seeds[:n_crash], cfg.workers, evaluator))
+        per = _episodes(checkpoint_now, shapes[:1], val_seeds[:n_nominal], evaluator)
+        per.update(_episodes(checkpoint_now, shapes[1:], val_seeds[:n_crash], evaluator))
         if not guard.exists():  # the first validation is of the policy before any update
             guard.write_text(json.dumps({"nominal": float(np.mean(per["nominal"])), "scores": per["nominal"],
                                          **rule}))
@@ -205,9 +205,11 @@ def _fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: d
                        anchor=anchor)
     finally:
         env.close()
+    try:  # the confirmation swaps the candidates into the validation's workers: no new pool per candidate
+        best = _confirm(cfg, out_dir, task, policy, shapes, rule, confirm_seeds, evaluator)
+    finally:
         evaluator.close()
     plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title="blue-team fine-tune")
-    best = _confirm(cfg, out_dir, task, policy, shapes, rule, confirm_seeds)
     if best is None:  # no confirmation asked for (confirm.candidates=0), or nothing validated
         best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
     if detail.exists():
@@ -261,7 +263,7 @@ def _keep_candidate(out_dir: Path, path: Path, iteration: int, keep: int) -> Non
 
 
 def _confirm(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, shapes, rule: dict,
-             seeds: list[int]) -> Path | None:
+             seeds: list[int], evaluator) -> Path | None:
     """Re-score the best validated checkpoints on fresh episodes and choose among them on validation and
     confirmation pooled (:func:`grt.blueteam.core.choose_confirmed`); writes ``confirm.json`` and
     returns the chosen checkpoint (``None``: nothing to confirm). Resumable: episodes already scored
@@ -284,14 +286,14 @@ def _confirm(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, shapes, r
     fresh = state.setdefault("episodes", {})
     nominal = [g for g in shapes if g.name == "nominal"]
     if "start" not in fresh:  # the policy before fine-tuning on the same fresh nominal episodes
-        fresh["start"] = _episodes(task, policy, nominal, seeds, cfg.workers)
+        fresh["start"] = _episodes(policy, nominal, seeds, evaluator)
         state_file.write_text(json.dumps(state, indent=1))
     for r in top:
         key = f"it{r['iteration']}"
         if key not in fresh:
             log.info("confirming the checkpoint of iteration %d on %d fresh episodes", r["iteration"], len(seeds))
-            fresh[key] = _episodes(task, {**policy, "checkpoint": str(out_dir / "candidates" / f"{key}.pt")},
-                                   shapes, seeds, cfg.workers)
+            fresh[key] = _episodes({**policy, "checkpoint": str(out_dir / "candidates" / f"{key}.pt")},
+                                   shapes, seeds, evaluator)
             state_file.write_text(json.dumps(state, indent=1))
     start = json.loads((out_dir / "val_nominal.json").read_text())
     pooled = [{"iteration": r["iteration"], "nominal": r["episodes"]["nominal"] + fresh[f"it{r['iteration']}"]["nominal"],
@@ -313,19 +315,13 @@ def _confirm(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, shapes, r
     return out_dir / "candidates" / f"it{table[pick]['iteration']}.pt"
 
 
-def _episodes(task: dict, policy: dict, geometries, seeds: list[int], workers: int,
-              evaluator=None) -> dict[str, list[float]]:
+def _episodes(policy: dict, geometries, seeds: list[int], evaluator) -> dict[str, list[float]]:
     """Each geometry's per-episode scores on ``seeds`` (simulator errors left out), on ``evaluator``'s
-    workers with ``policy`` swapped in, or on a pool of its own."""
+    workers with ``policy`` swapped in."""
     from grt.evaluators.base import SIM_ERROR
-    from grt.evaluators.sim import SimEvaluator
 
-    if evaluator is not None:
-        results = evaluator.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries],
-                                     policy=policy)
-    else:
-        with SimEvaluator(task=task, policy=policy, workers=workers, collision="coacd", progress=True) as ev:
-            results = ev.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries])
+    results = evaluator.evaluate([g.mesh for g in geometries], seeds, parts=[g.parts for g in geometries],
+                                 policy=policy)
     errors = sum(r.sim_errors for r in results)
     if errors:
         log.warning("%d of %d episodes ended in a simulator error and are left out", errors,
