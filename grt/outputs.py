@@ -203,9 +203,15 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     if confirmation is not None:
         summary["confirm"] = confirmation
         summary["confirmed_final_drop"] = confirmation["confirmed_final_drop"]
+    notes = []
     if not result.s0 > 0:
-        summary["note"] = (f"S0 = {score.fmt(result.s0, unit=True)}: the policy already fails on the nominal "
-                           "object; relative drops need a positive S0 and are undefined")
+        notes.append(f"S0 = {score.fmt(result.s0, unit=True)}: the policy already fails on the nominal "
+                     "object; relative drops need a positive S0 and are undefined")
+    tried = sum(1 for r in records if r["iteration"] >= 1)
+    if tried and summary["invalid_candidates"] == tried:
+        notes.append(implausible_note(tried, len(handle_set.handles), cfg.budget.sigma))
+    if notes:
+        summary["note"] = "; ".join(notes)
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
     summary["crashshapes"] = save_crashshapes(run_dir, best, meshes, evaluator)
     # The handle/anchor sets travel with the shapes (indices into every CrashShape's vertices).
@@ -221,6 +227,13 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         plot_shapes(deformer.mesh, shapes, tmp, handles=handle_set.handles)
     write_text_atomic(run_dir / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
     return summary
+
+
+def implausible_note(candidates: int, handles: int, sigma: float) -> str:
+    """Why a run found nothing when the validity checks refused every candidate, and what to change."""
+    return (f"all {candidates} candidates were implausible (self-intersecting or folded) and none was simulated, "
+            f"so the search found nothing: {handles} handles at budget.sigma={sigma:g} fold the object; "
+            "lower budget.sigma, cap the mean displacement (budget.tau) or use fewer handles (selector=heuristic)")
 
 
 def _fresh_label(confirmed: dict | None, score: ScoreSpec) -> str:
@@ -269,6 +282,11 @@ def print_summary(summary: dict, run_dir: Path) -> None:
                   fmt(summary["wall_s"], "{:.0f}"))
     console = Console()
     console.print(table)
+    invalid, tried = summary.get("invalid_candidates", 0), summary["evaluations"] - 1
+    if invalid:
+        console.print(f"implausible: {invalid} of {tried} candidates (self-intersecting or folded), not simulated")
+    if summary.get("note"):
+        console.print(f"note: {summary['note']}", style="yellow", markup=False)
     conf = summary.get("confirm")
     if conf:
         s0, shapes = conf["s0"], conf["shapes"]

@@ -25,7 +25,7 @@ from grt.scores import ScoreSpec
 
 COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name",
            "score_unit", "s0", "best_score", "final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc",
-           "evaluations", "wall_s")
+           "evaluations", "invalid_candidates", "wall_s")
 REQUIRED = ("task", "object", "selector", "optimizer", "final_drop", "delta_complexity", "iter_at_50", "auc")
 
 
@@ -112,14 +112,14 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     confirmed = any(r.get("confirm") for r in rows)
     head, rule = ("| Confirmed drop (%) ", "---|") if confirmed else ("", "")
     lines = [f"| task | object | policy | method | σ | seed | score | S0 | best | Final Drop (%) ↑ {head}| ΔComplexity ↓ "
-             f"| Iter@50% ↓ | AUC ↑ |", f"|---|---|---|---|---|---|---|---|---|---|{rule}---|---|---|"]
+             f"| Iter@50% ↓ | AUC ↑ | implausible |", f"|---|---|---|---|---|---|---|---|---|---|{rule}---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | "
                      f"{_fmt(r.get('sigma'), 'g')} | {_fmt(r.get('seed'))} | "
                      f"{ScoreSpec.from_summary(r).label} | {score_cell(r, 's0')} | {score_cell(r, 'best_score')} | "
                      f"{_fmt(r['final_drop'], 'pct')} | {_confirm_cell(r) if confirmed else ''}"
                      f"{_fmt(r['delta_complexity'])} | "
-                     f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} |")
+                     f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} | {_implausible_cell(r)} |")
     lines += ["", "Mean per method (* = 50% drop not reached; T reported"
               + ("; confirmed drop: rank-1 CrashShape on fresh episodes, (n/k) drops significant" if confirmed else "")
               + "):", "",
@@ -132,6 +132,13 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     if failed:
         lines += ["", f"{len(failed)} failed job(s) (see error.txt):"] + [f"- {p}" for p in failed]
     return "\n".join(lines)
+
+
+def _implausible_cell(r: dict) -> str:
+    """``4 / 30``: candidates the validity checks refused (never simulated) of those the search made."""
+    if r.get("invalid_candidates") is None or r.get("evaluations") is None:
+        return "-"  # a summary from before the checks were counted
+    return f"{r['invalid_candidates']} / {r['evaluations'] - 1}"
 
 
 def _confirm_cell(r: dict) -> str:

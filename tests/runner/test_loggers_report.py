@@ -36,9 +36,9 @@ def test_wandb_mode_is_validated():
         WandbLogger(mode="sometimes")
 
 
-def _fake_run(folder: Path, obj: str, selector: str, drop: float):
+def _fake_run(folder: Path, obj: str, selector: str, drop: float, **extra):
     folder.mkdir(parents=True)
-    (folder / "summary.json").write_text(json.dumps({
+    (folder / "summary.json").write_text(json.dumps({**extra,
         "task": "grasp", "object": obj, "selector": selector, "optimizer": "topdm", "s0": 0.9,
         "best_score": 0.9 * (1 - drop), "final_drop": drop, "delta_complexity": 0.01, "iter_at_50": 3,
         "reached_50": drop >= 0.5, "auc": 2.0, "evaluations": 11, "wall_s": 5.0}))
@@ -46,13 +46,14 @@ def _fake_run(folder: Path, obj: str, selector: str, drop: float):
 
 def test_report_cli_tables_and_csv(tmp_path):
     _fake_run(tmp_path / "0_heuristic-topdm", "mug", "heuristic", 0.6)
-    _fake_run(tmp_path / "1_heuristic-topdm", "can", "heuristic", 0.2)
+    _fake_run(tmp_path / "1_heuristic-topdm", "can", "heuristic", 0.2, invalid_candidates=4)
     (tmp_path / "2_x").mkdir()
     (tmp_path / "2_x" / "error.txt").write_text("boom")
     out = subprocess.run([sys.executable, "-m", "grt.report", str(tmp_path), "--csv", str(tmp_path / "t.csv")],
                          capture_output=True, text=True, check=True).stdout
     assert "| grasp | - | heuristic + topdm | 2 | 40.0 |" in out  # old summaries name no policy
     assert "1 failed job" in out
+    assert "| 2.000 | 4 / 10 |" in out and "| 2.000 | - |" in out  # refused candidates; "-": not counted
     assert (tmp_path / "t.csv").read_text().count("\n") == 3
 
 
