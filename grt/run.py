@@ -110,6 +110,7 @@ def run(cfg: DictConfig) -> dict:
     evaluator = instantiate(cfg.evaluator)(task=_plain(cfg.task), policy=_plain(cfg.policy), nominal=mesh,
                                            progress=False)  # the red-team bar shows progress
     total = 1 + cfg.budget.population * cfg.budget.iterations
+    folding = FoldingWatch(journal, len(handle_set.handles), cfg.budget.sigma)
     bar = tqdm(total=total, desc="red-team", unit="cand", initial=len(journal), dynamic_ncols=True)
     try:
         logger.start(run_dir, name=run_dir.name, config=_plain(cfg))
@@ -117,8 +118,9 @@ def run(cfg: DictConfig) -> dict:
             deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
             complexity=_entropy,
             on_candidate=lambda rec: _progress(bar, rec, score),
-            on_iteration=lambda t, scores: logger.log_iteration(t, {"best_score": optimizer.best_score,
-                                                                    "mean_score": float(np.mean(scores))}),
+            on_iteration=lambda t, scores: (
+                logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
+                folding(t)),
             ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
             validity=candidate_validity if cfg.deformer.get("validity", False) else None)
         result = loop.run()
@@ -134,6 +136,24 @@ def run(cfg: DictConfig) -> dict:
         logger.finish()
     print_summary(summary, run_dir)
     return summary
+
+
+class FoldingWatch:
+    """Warns once, at the first iteration whose candidates the validity checks all refused, that the
+    search cannot move: a long run should not find that out only at its end."""
+
+    def __init__(self, journal: Journal, handles: int, sigma: float):
+        self.journal, self.handles, self.sigma, self.warned = journal, handles, sigma, False
+
+    def __call__(self, t: int) -> None:
+        made = [r for r in self.journal.records if r["iteration"] == t]
+        if self.warned or not made or not all(r.get("valid") is False for r in made):
+            return
+        self.warned = True
+        log.warning("iteration %d: all %d candidates were implausible (self-intersecting or folded), none "
+                    "simulated: %d handles at budget.sigma=%g fold the object. Lower budget.sigma, cap the "
+                    "displacement (budget.tau) or use fewer handles (selector=heuristic)",
+                    t, len(made), self.handles, self.sigma)
 
 
 def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, evaluator, seeds: list[int],

@@ -95,11 +95,13 @@ def test_journal_keeps_each_trials_opening_and_the_bootstrap_interval(drawer_run
         assert rec["ci95"] == pytest.approx(list(metrics.bootstrap_interval(scores)))
 
 
-def test_a_run_whose_every_candidate_folds_says_so_and_how_to_fix_it(tmp_path, capsys):
+def test_a_run_whose_every_candidate_folds_says_so_and_how_to_fix_it(tmp_path, capsys, caplog):
     """Steps far too large for the object: the validity checks refuse every candidate, nothing is
-    simulated, and the summary (file and screen) says why the search found nothing and what to change."""
+    simulated; the run warns after the first such iteration, and the summary (file and screen) says why
+    the search found nothing and what to change."""
     from grt.geometry.quality import candidate_validity
     from grt.outputs import print_summary
+    from grt.run import FoldingWatch
 
     cfg = compose_run(["object=can", "task.score=opening", "+task.score_unit=m", "+task.ci=bootstrap",
                        "budget=smoke", "budget.sigma=0.8", f"paths.output_dir={tmp_path}"])
@@ -107,9 +109,14 @@ def test_a_run_whose_every_candidate_folds_says_so_and_how_to_fix_it(tmp_path, c
     handles = HeuristicSelector(k=6, seed=0).select(mesh, "")
     deformer = ShapeDeformer(mesh, handles.handles, handles.anchors)
     optimizer = TOPDMOptimizer(len(handles.handles), population=3, sigma=0.8, seed=0)
-    loop = RedTeamLoop(deformer, optimizer, OpeningEvaluator(mesh.volume), Journal(tmp_path / "journal.jsonl"),
-                       episode_seeds(0, 2), iterations=1, ci="bootstrap", validity=candidate_validity)
-    summary = write_outputs(cfg, tmp_path, loop.run(), deformer, handles, OpeningEvaluator(mesh.volume), wall_s=1.0)
+    journal = Journal(tmp_path / "journal.jsonl")
+    watch = FoldingWatch(journal, len(handles.handles), 0.8)
+    loop = RedTeamLoop(deformer, optimizer, OpeningEvaluator(mesh.volume), journal, episode_seeds(0, 2),
+                       iterations=1, ci="bootstrap", validity=candidate_validity, on_iteration=lambda t, _: watch(t))
+    with caplog.at_level("WARNING", logger="grt.run"):
+        result = loop.run()
+    assert "iteration 1: all 3 candidates were implausible" in caplog.text
+    summary = write_outputs(cfg, tmp_path, result, deformer, handles, OpeningEvaluator(mesh.volume), wall_s=1.0)
     assert summary["invalid_candidates"] == 3 and summary["best_score"] is None
     stored = json.loads((tmp_path / "summary.json").read_text())
     assert "all 3 candidates were implausible" in stored["note"] and "lower budget.sigma" in stored["note"]
