@@ -233,7 +233,9 @@ def implausible_note(candidates: int, handles: int, sigma: float) -> str:
     """Why a run found nothing when the validity checks refused every candidate, and what to change."""
     return (f"all {candidates} candidates were implausible (self-intersecting or folded) and none was simulated, "
             f"so the search found nothing: {handles} handles at budget.sigma={sigma:g} fold the object; "
-            "lower budget.sigma, cap the mean displacement (budget.tau) or use fewer handles (selector=heuristic)")
+            "lower budget.sigma, cap the mean displacement (budget.tau) or use fewer handles (selector=heuristic); "
+            f"python -m grt.select with the run's object and selector and 'probe.sigmas=[{sigma / 4:g},{sigma / 2:g}]' "
+            "counts, without simulating, the candidates each sigma folds")
 
 
 def _fresh_label(confirmed: dict | None, score: ScoreSpec) -> str:

@@ -152,7 +152,8 @@ class FoldingWatch:
         self.warned = True
         log.warning("iteration %d: all %d candidates were implausible (self-intersecting or folded), none "
                     "simulated: %d handles at budget.sigma=%g fold the object. Lower budget.sigma, cap the "
-                    "displacement (budget.tau) or use fewer handles (selector=heuristic)",
+                    "displacement (budget.tau) or use fewer handles (selector=heuristic); python -m grt.select "
+                    "object=... selector=... 'probe.sigmas=[...]' counts the candidates each sigma folds",
                     t, len(made), self.handles, self.sigma)
 
 

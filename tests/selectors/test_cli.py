@@ -78,3 +78,27 @@ def test_every_selector_config_composes_and_instantiates(tmp_path):
             selector = instantiate(cfg.selector)
             assert isinstance(selector, HandleSelector)
             assert type(selector).__module__ == f"grt.selectors.{name}"
+
+
+def test_probe_counts_the_candidates_a_run_would_refuse_at_each_sigma(tmp_path):
+    """``probe.sigmas``: a small σ leaves every first-iteration candidate valid, a huge one folds all."""
+    out = tmp_path / "out"
+    proc = run_select("object=can", "selector=heuristic", "probe.sigmas=[0.01,0.8]", "probe.candidates=4",
+                      f"out_dir={out}")
+    assert proc.returncode == 0, proc.stderr
+    probe = json.loads((out / "probe.json").read_text())
+    counts = {(r["search"], r["sigma"]): r["valid"] for r in probe["rows"]}
+    assert counts == {("topdm", 0.01): 4, ("gaussian", 0.01): 4, ("topdm", 0.8): 0, ("gaussian", 0.8): 0}
+    assert probe["deformer"]["method"] == "smooth" and probe["candidates"] == 4
+    warning = next(line for line in proc.stdout.splitlines() if "fold the object" in line)
+    assert "σ 0.8 over half" in warning and "0.01" not in warning
+
+
+def test_probe_settings_are_checked_before_any_work(tmp_path):
+    for override, message in (("probe.sigmas=0.03", "probe.sigmas must be a list"),
+                              ("probe.sigmas=[0,1]", "probe.sigmas must be positive"),
+                              ("probe.candidates=0", "probe.candidates must be a whole number")):
+        proc = run_select("object=can", override, f"out_dir={tmp_path / 'out'}")
+        assert proc.returncode == 2 and proc.stderr.strip().startswith("error: " + message), proc.stderr
+        assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "out" / "handles.json").exists()
