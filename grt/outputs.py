@@ -199,6 +199,8 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "deformer": deformer_summary(deformer),
         "invalid_candidates": sum(1 for r in records if r["iteration"] >= 1 and r.get("valid") is False),
         "self_intersecting": sum(1 for r in records if r["iteration"] >= 1 and r.get("self_intersections", 0) > 0),
+        # deformer.validity=false: nothing was checked, so the counts above are not "none refused"
+        "validity_checked": any("valid" in r for r in records if r["iteration"] >= 1),
     }
     if confirmation is not None:
         summary["confirm"] = confirmation
@@ -285,7 +287,9 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     console = Console()
     console.print(table)
     invalid, tried = summary.get("invalid_candidates", 0), summary["evaluations"] - 1
-    if invalid:
+    if tried and summary.get("validity_checked") is False:
+        console.print("plausibility not checked (deformer.validity=false): folded candidates were simulated too")
+    elif invalid:
         console.print(f"implausible: {invalid} of {tried} candidates (self-intersecting or folded), not simulated")
     if summary.get("note"):
         console.print(f"note: {summary['note']}", style="yellow", markup=False)

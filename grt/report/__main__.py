@@ -25,7 +25,7 @@ from grt.scores import ScoreSpec
 
 COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name",
            "score_unit", "s0", "best_score", "final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc",
-           "evaluations", "invalid_candidates", "wall_s")
+           "evaluations", "invalid_candidates", "validity_checked", "wall_s")
 REQUIRED = ("task", "object", "selector", "optimizer", "final_drop", "delta_complexity", "iter_at_50", "auc")
 
 
@@ -135,9 +135,12 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
 
 
 def _implausible_cell(r: dict) -> str:
-    """``4 / 30``: candidates the validity checks refused (never simulated) of those the search made."""
+    """``4 / 30``: candidates the validity checks refused (never simulated) of those the search made;
+    ``not checked`` for a run with ``deformer.validity=false``."""
     if r.get("invalid_candidates") is None or r.get("evaluations") is None:
         return "-"  # a summary from before the checks were counted
+    if r.get("validity_checked") is False:
+        return "not checked"
     return f"{r['invalid_candidates']} / {r['evaluations'] - 1}"
 
 

@@ -123,3 +123,15 @@ def test_a_run_whose_every_candidate_folds_says_so_and_how_to_fix_it(tmp_path, c
     print_summary(summary, tmp_path)
     out = " ".join(capsys.readouterr().out.split())
     assert "implausible: 3 of 3 candidates" in out and "selector=heuristic" in out
+    assert stored["validity_checked"] is True
+
+    # the same steps with the checks off: the folded cans are simulated, and nothing claims they were plausible
+    unchecked = tmp_path / "unchecked"
+    unchecked.mkdir()
+    loop = RedTeamLoop(deformer, TOPDMOptimizer(len(handles.handles), population=3, sigma=0.8, seed=0),
+                       OpeningEvaluator(mesh.volume), Journal(unchecked / "journal.jsonl"), episode_seeds(0, 2),
+                       iterations=1, ci="bootstrap")
+    summary = write_outputs(cfg, unchecked, loop.run(), deformer, handles, OpeningEvaluator(mesh.volume), wall_s=1.0)
+    assert summary["validity_checked"] is False and summary["invalid_candidates"] == 0 and "note" not in summary
+    print_summary(summary, unchecked)
+    assert "plausibility not checked" in " ".join(capsys.readouterr().out.split())

@@ -46,7 +46,8 @@ def _fake_run(folder: Path, obj: str, selector: str, drop: float, **extra):
 
 def test_report_cli_tables_and_csv(tmp_path):
     _fake_run(tmp_path / "0_heuristic-topdm", "mug", "heuristic", 0.6)
-    _fake_run(tmp_path / "1_heuristic-topdm", "can", "heuristic", 0.2, invalid_candidates=4)
+    _fake_run(tmp_path / "1_heuristic-topdm", "can", "heuristic", 0.2, invalid_candidates=4, validity_checked=True)
+    _fake_run(tmp_path / "3_all-topdm", "can", "all", 0.2, invalid_candidates=0, validity_checked=False)
     (tmp_path / "2_x").mkdir()
     (tmp_path / "2_x" / "error.txt").write_text("boom")
     out = subprocess.run([sys.executable, "-m", "grt.report", str(tmp_path), "--csv", str(tmp_path / "t.csv")],
@@ -54,7 +55,8 @@ def test_report_cli_tables_and_csv(tmp_path):
     assert "| grasp | - | heuristic + topdm | 2 | 40.0 |" in out  # old summaries name no policy
     assert "1 failed job" in out
     assert "| 2.000 | 4 / 10 |" in out and "| 2.000 | - |" in out  # refused candidates; "-": not counted
-    assert (tmp_path / "t.csv").read_text().count("\n") == 3
+    assert "| 2.000 | not checked |" in out  # deformer.validity=false: 0 refused would read as "all plausible"
+    assert (tmp_path / "t.csv").read_text().count("\n") == 4
 
 
 def test_report_cli_errors_clearly_on_empty_folder(tmp_path):
