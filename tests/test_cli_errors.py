@@ -133,7 +133,7 @@ def _summary(folder: Path, **extra) -> None:
 
 @pytest.mark.parametrize(("argv", "message"), [
     (["{tmp}/nowhere"], "does not exist"),
-    (["{tmp}/empty"], "no summary.json under"),
+    (["{tmp}/empty"], "no summary.json (or summary_<name>.json) under"),
     (["{tmp}/h.txt"], "is a file; give a run folder"),
     (["{tmp}/broken"], "summary.json: cannot read it"),
     (["{tmp}/other"], "not a GRT run summary (no task"),

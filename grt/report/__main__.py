@@ -1,10 +1,11 @@
 """``python -m grt.report PATH [--csv OUT.csv]``: the paper's columns for a run or a multirun folder.
 
-Reads only ``summary.json`` files (and ``error.txt`` of failed jobs): Final Drop (%), ΔComplexity,
+Reads only ``summary.json`` files (and ``error.txt`` of failed jobs), or the ``summary_<name>.json`` copies
+that ``experiments/`` keeps of them, so a committed table renders as its sweep did: Final Drop (%), ΔComplexity,
 Iter@50%, AUC, per run (with the confirmed Final Drop of runs that confirmed their CrashShapes on fresh
 episodes, ``budget.confirm_trials``: the rank-1 drop and how many of the k drops are significant), plus
-the mean over runs of each (selector, optimizer) method, the way the paper aggregates objects into
-Tables 1 and 2. S0 and the best score are in the task's own score, named
+the mean over runs of each (selector, optimizer) method and σ, the way the paper aggregates objects into
+Tables 1 and 2 (σ is part of the key: a folder that holds several σ does not average them together). S0 and the best score are in the task's own score, named
 per run (``success rate``, ``mean opening (m)``); the other columns are relative to S0, unit-free.
 A mistake (no such folder, no or a broken ``summary.json``, a ``--csv`` path that cannot be written) is
 one ``error:`` line and exit code 2.
@@ -46,7 +47,7 @@ def collect(root: Path) -> tuple[list[dict], list[Path]]:
             raise ReportError(f"{root} is a file; give a run folder or a multirun folder under outputs/")
         root = root.parent
     rows = []
-    for path in sorted(root.rglob("summary.json")):
+    for path in sorted(p for p in root.rglob("summary*.json") if _is_summary_name(p.name)):
         data = read_summary(path)
         data["run"] = str(path.parent)
         spec = ScoreSpec.from_summary(data)  # summaries written before score_name: a success rate
@@ -55,6 +56,11 @@ def collect(root: Path) -> tuple[list[dict], list[Path]]:
         rows.append(data)
     failed = sorted(p.parent for p in root.rglob("error.txt"))
     return rows, failed
+
+
+def _is_summary_name(name: str) -> bool:
+    """``summary.json`` (a run folder) or ``summary_<name>.json`` (a copy kept under ``experiments/``)."""
+    return name == "summary.json" or (name.startswith("summary_") and name.endswith(".json"))
 
 
 def read_summary(path: Path) -> dict:
@@ -93,13 +99,13 @@ def method(r: dict) -> str:
 
 
 def aggregate(rows: list[dict]) -> list[dict]:
-    """Mean of each metric per (task, policy, method), over objects/seeds (NaNs skipped)."""
+    """Mean of each metric per (task, policy, method, σ), over objects/seeds (NaNs skipped)."""
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in rows:
-        groups[(r["task"], r.get("policy") or "-", method(r))].append(r)
+        groups[(r["task"], r.get("policy") or "-", method(r), _fmt(r.get("sigma"), "g"))].append(r)
     out = []
-    for (task, policy, label), rs in sorted(groups.items()):
-        agg = {"task": task, "policy": policy, "method": label, "runs": len(rs)}
+    for (task, policy, label, sigma), rs in sorted(groups.items()):
+        agg = {"task": task, "policy": policy, "method": label, "sigma": sigma, "runs": len(rs)}
         for k in ("final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc"):
             vals = [r[k] for r in rs if r.get(k) is not None and not (isinstance(r[k], float) and math.isnan(r[k]))]
             agg[k] = sum(vals) / len(vals) if vals else None
@@ -123,11 +129,11 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     lines += ["", "Mean per method (* = 50% drop not reached; T reported"
               + ("; confirmed drop: rank-1 CrashShape on fresh episodes, (n/k) drops significant" if confirmed else "")
               + "):", "",
-              f"| task | policy | method | runs | Final Drop (%) ↑ {head}| ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
-              f"|---|---|---|---|---|{rule}---|---|---|"]
+              f"| task | policy | method | σ | runs | Final Drop (%) ↑ {head}| ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
+              f"|---|---|---|---|---|---|{rule}---|---|---|"]
     for a in agg:
         cell = f"{_fmt(a['confirmed_final_drop'], 'pct')} | " if confirmed else ""
-        lines.append(f"| {a['task']} | {a['policy']} | {a['method']} | {a['runs']} | {_fmt(a['final_drop'], 'pct')} | "
+        lines.append(f"| {a['task']} | {a['policy']} | {a['method']} | {a['sigma']} | {a['runs']} | {_fmt(a['final_drop'], 'pct')} | "
                      f"{cell}{_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | {_fmt(a['auc'])} |")
     if failed:
         lines += ["", f"{len(failed)} failed job(s) (see error.txt):"] + [f"- {p}" for p in failed]
@@ -162,7 +168,8 @@ def main(argv: list[str] | None = None) -> None:
             check_output_file(args.csv, (".csv",), "--csv")  # before reading anything
         rows, failed = collect(args.path)
         if not rows and not failed:
-            raise ReportError(f"no summary.json under {args.path}: is it a finished GRT run folder?")
+            raise ReportError(f"no summary.json (or summary_<name>.json) under {args.path}: is it a finished GRT "
+                              "run folder?")
         print(markdown(rows, aggregate(rows), failed))
         if args.csv:
             text = io.StringIO(newline="")

@@ -83,6 +83,20 @@ def test_report_names_each_runs_score(tmp_path, capsys):
     assert (by_object["mug"]["score_name"], by_object["mug"]["score_unit"]) == ("success", "")
 
 
+def test_report_reads_kept_copies_and_keeps_sigmas_apart(tmp_path, capsys):
+    """experiments/ keeps summaries as summary_<name>.json side by side; the mean never mixes two σ."""
+    for name, sigma, best in (("mug_a", 0.06, 0.0), ("bottle_a", 0.06, 0.45), ("mug_b", 0.001, 0.81)):
+        (tmp_path / f"summary_{name}.json").write_text(json.dumps({
+            "task": "grasp", "object": name.split("_")[0], "selector": "heuristic", "optimizer": "topdm",
+            "sigma": sigma, "s0": 0.9, "best_score": best, "final_drop": (0.9 - best) / 0.9,
+            "delta_complexity": 0.01, "iter_at_50": 1, "reached_50": True, "auc": 1.0, "evaluations": 11}))
+    (tmp_path / "summary_notes.txt").write_text("not a summary")
+    main([str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "| grasp | - | heuristic + topdm | 0.06 | 2 | 75.0 |" in out  # (100 + 50) / 2
+    assert "| grasp | - | heuristic + topdm | 0.001 | 1 | 10.0 |" in out
+
+
 def test_console_summary_names_the_score(tmp_path, capsys):
     summary = {"task": "drawer", "object": "cabinet", "selector": "heuristic", "optimizer": "topdm",
                "score_name": "opening", "score_unit": "m", "s0": 0.35, "best_score": 0.05,
