@@ -153,6 +153,11 @@ def _check_optimizer(node: DictConfig) -> None:
                           f"{exc}") from None
 
 
+def plain(node) -> dict | list:
+    """A config node as plain Python containers, interpolations resolved (what library code takes)."""
+    return OmegaConf.to_container(node, resolve=True)
+
+
 def object_name(spec: str) -> str:
     """A short name for an object spec: the built-in name, or a file's stem."""
     text = str(spec)

@@ -22,7 +22,13 @@ INTERRUPTED = 130  # the shell's code for a process ended by SIGINT (128 + 2)
 _NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
 
 
-class OutputError(ValueError):
+class UserError(ValueError):
+    """Base of every error in what the user gave (object, mesh, config, checkpoint, plug, VLM, output path):
+    its message names the problem and the fix, and the command-line apps print it as one line, exit code 2.
+    Domain errors subclass it where they are defined, so the error path needs no registry of them."""
+
+
+class OutputError(UserError):
     """An output the tool cannot write (unsupported format, missing or read-only folder)."""
 
 
