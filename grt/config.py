@@ -20,8 +20,10 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from grt.errors import UserError
 
-class ConfigError(ValueError):
+
+class ConfigError(UserError):
     """A config value out of range or a key no schema knows; the message names the key and the fix."""
 
 

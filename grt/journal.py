@@ -20,12 +20,14 @@ import logging
 import os
 from pathlib import Path
 
+from grt.errors import UserError
+
 log = logging.getLogger("grt.journal")
 
 CHECKSUM = "sha256"
 
 
-class JournalError(RuntimeError):
+class JournalError(UserError, RuntimeError):  # RuntimeError: what caught it before still does
     """The journal cannot be used as it is; the message names the line and the fix."""
 
 

@@ -23,17 +23,18 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from grt.errors import UserError
 from grt.metrics import CI_METHODS
 
 # The paper keeps the objects the policy grasps in at least 25% of the nominal trials.
 BINARY_FLOOR = 0.25
 
 
-class ScoreConfigError(ValueError):
+class ScoreConfigError(UserError):
     """A task's score settings cannot be used (unknown ``ci``, Wilson on a continuous score)."""
 
 
-class NominalFloorError(ValueError):
+class NominalFloorError(UserError):
     """The nominal score ``S0`` is below the task's ``nominal_floor``: nothing worth red-teaming."""
 
 

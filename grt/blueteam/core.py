@@ -21,12 +21,13 @@ import numpy as np
 import trimesh
 from omegaconf import DictConfig, OmegaConf
 
+from grt.errors import UserError
 from grt.scores import ScoreSpec
 
 log = logging.getLogger(__name__)
 
 
-class BlueTeamError(ValueError):
+class BlueTeamError(UserError):
     """A red-team run that cannot be blue-teamed (no journal, no CrashShape, an untrainable policy)."""
 
 

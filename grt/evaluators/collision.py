@@ -37,6 +37,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
+from grt.errors import UserError
 from grt.geometry.mesh import mesh_hash
 
 log = logging.getLogger(__name__)
@@ -45,7 +46,7 @@ MAX_HULL_VERTICES = 64
 MIN_PART_VOLUME = 1e-12  # m³; a part thinner than this is degenerate
 
 
-class CollisionError(ValueError):
+class CollisionError(UserError):
     """Collision geometry that cannot be used (empty or degenerate parts); names the mesh."""
 
 

@@ -17,12 +17,13 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from grt.errors import UserError
 from grt.geometry.quality import nominal_crossings
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
 
 
-class MeshError(ValueError):
+class MeshError(UserError):
     """A mesh that cannot be used; the message says what is wrong and how to fix it."""
 
 

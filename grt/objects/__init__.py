@@ -19,13 +19,14 @@ import functools
 import numpy as np
 import trimesh
 
+from grt.errors import UserError
 from grt.objects.catalog import BUILDERS, DESCRIPTIONS, DRAWER, INSERTION
 from grt.objects.shapes import clean_slivers, to_trimesh
 
 __all__ = ["UnknownObjectError", "get_object", "list_objects", "object_info", "object_regions"]
 
 
-class UnknownObjectError(ValueError):
+class UnknownObjectError(UserError):
     """An object name that is neither built in nor (where a path is accepted) an existing file."""
 
     def __init__(self, name: str):

@@ -46,12 +46,14 @@ import torch
 from scipy.spatial import cKDTree
 from torch import nn
 
+from grt.errors import UserError
+
 NUM_NEIGHBORS = 64  # max_num_neighbors of every ball in the checkpoint's set abstraction
 INSTALL_HINT = ("pip install --no-deps cgn-pytorch==0.4.3 (bash scripts/setup.sh installs it; the wheel "
                 "holds the weights)")
 
 
-class CGNWeightsError(RuntimeError):
+class CGNWeightsError(UserError, RuntimeError):  # RuntimeError: what caught it before still does
     """The pretrained Contact-GraspNet weights are not installed."""
 
 

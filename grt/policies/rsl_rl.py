@@ -19,10 +19,11 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
+from grt.errors import UserError
 from grt.policies.base import Policy
 
 
-class CheckpointError(ValueError):
+class CheckpointError(UserError):
     """A checkpoint that is missing, unreadable, or made for another task or observation."""
 
 

@@ -21,13 +21,15 @@ import os
 import time
 from pathlib import Path
 
+from grt.errors import UserError
+
 log = logging.getLogger(__name__)
 
 CACHE_MODES = ("use", "replay", "off")
 CONFIG_HINT = "check selector.base_url, selector.model and selector.api_key_env"
 
 
-class VLMError(RuntimeError):
+class VLMError(UserError, RuntimeError):  # RuntimeError: what caught it before still does
     """The VLM could not give a usable answer; the message (one line) names the config keys to fix."""
 
     def __init__(self, message: str):

@@ -232,6 +232,8 @@ class VLMSelector(KeypointSelector):
             if text is None:
                 return None
             parsed = parse_response(text, schema, k)
+        except VLMError:  # a miss in replay mode is the user's to fix (a UserError, so a ValueError too)
+            raise
         except ValueError as exc:  # CacheEntryError too
             note = self.cache.drop(key, f"{stage} answer: {exc}")
             log.append({"stage": stage, "cache_key": key, "cached": True, "dropped": note})

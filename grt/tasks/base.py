@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from grt.errors import UserError
+
 FAILURE_MODES = (
     "success",
     "no_grasp_found",
@@ -44,7 +46,7 @@ FAILURE_MODES = (
 )
 
 
-class TaskInputError(ValueError):
+class TaskInputError(UserError):
     """An object or task setting the task cannot use (a user error: the message names the fix)."""
 
 
