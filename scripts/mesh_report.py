@@ -3,7 +3,7 @@
 One Markdown row per object (input faces, prepared faces, repairs, volume ratio, Hausdorff and Chamfer
 distance in mm, prepare seconds), with the apps' settings (``mesh.remesh=auto``), then the 300k-face
 sphere of issue 12 (generated, in memory) and, as the last line, the rows as JSON. The same rows come from
-:func:`grt.geometry.prepare.prepare_report` (``python -m grt.bench meshes`` builds on it).
+:func:`grt.geometry.mesh.prepare_report` (``python -m grt.bench meshes`` builds on it).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import time
 import trimesh
 
 from grt.bench.meshes import REAL, REAL_SCALES
-from grt.geometry.mesh import prepare_mesh
-from grt.geometry.prepare import MeshSettings, prepare_report
+from grt.geometry.mesh import prepare_mesh, prepare_report
+from grt.geometry.prepare import MeshSettings
 
 BUILTINS = ("mug", "plug", "bottle")
 

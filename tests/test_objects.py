@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from grt.geometry.deform import ShapeDeformer
-from grt.geometry.mesh import mesh_problems
+from grt.geometry.validation import mesh_problems
 from grt.objects import UnknownObjectError, get_object, list_objects, object_info, object_regions
 from grt.objects.shapes import min_face_angles
 

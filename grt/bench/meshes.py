@@ -47,8 +47,8 @@ def inputs(objects: list[tuple[str, float]]) -> list[dict]:
     """Measurement 1: the pipeline and both deformers on each object."""
     from grt.geometry.complexity import angular_deficit_entropy
     from grt.geometry.deform import ShapeDeformer
-    from grt.geometry.mesh import load_mesh
-    from grt.geometry.prepare import MeshSettings, prepare_report
+    from grt.geometry.mesh import load_mesh, prepare_report
+    from grt.geometry.prepare import MeshSettings
     from grt.geometry.quality import candidate_validity, spike_ratios
     from grt.selectors.heuristic import HeuristicSelector
 

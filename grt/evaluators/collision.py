@@ -33,11 +33,13 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
 
+import manifold3d as m3
 import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
 from grt.errors import UserError
+from grt.fileio import atomic_path
 from grt.geometry.mesh import mesh_hash
 
 log = logging.getLogger(__name__)
@@ -225,7 +227,7 @@ class CoacdCollision(Collision):
         parts = [hull_vertices(p, self.max_hull_vertices) for p in run_coacd(mesh, self.params)]
         parts = validate_parts(parts, label)
         if path is not None:
-            _atomic_save(path, parts)
+            _save_parts(path, parts)
         return parts
 
 
@@ -239,12 +241,11 @@ def run_coacd(mesh: trimesh.Trimesh, params: CoacdParams) -> list[np.ndarray]:
     return [np.asarray(verts, np.float64) for verts, _faces in result]
 
 
-def _atomic_save(path: Path, parts: list[np.ndarray]) -> None:
-    # Several worker processes may write the same entry: write aside, then rename (atomic on POSIX).
+def _save_parts(path: Path, parts: list[np.ndarray]) -> None:
+    # Several worker processes may write the same entry: each writes whole files (grt.fileio).
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
-    np.savez(tmp, count=len(parts), **{f"part{i}": p for i, p in enumerate(parts)})
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        np.savez(tmp, count=len(parts), **{f"part{i}": p for i, p in enumerate(parts)})
 
 
 class TransportedCollision(Collision):
@@ -332,8 +333,6 @@ def volume_iou(parts: list[np.ndarray], reference: trimesh.Trimesh | list[np.nda
     Returns:
         ``vol(A ∩ B) / vol(A ∪ B)`` in ``[0, 1]``.
     """
-    import manifold3d as m3
-
     a = _union_of_hulls(parts)
     if isinstance(reference, trimesh.Trimesh):
         b = m3.Manifold(m3.Mesh(vert_properties=np.asarray(reference.vertices, np.float32),
@@ -347,7 +346,5 @@ def volume_iou(parts: list[np.ndarray], reference: trimesh.Trimesh | list[np.nda
 
 
 def _union_of_hulls(parts: list[np.ndarray]):
-    import manifold3d as m3
-
     hulls = [m3.Manifold.hull_points(np.asarray(p, np.float64)) for p in parts]
     return m3.Manifold.batch_boolean(hulls, m3.OpType.Add)

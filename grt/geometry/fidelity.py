@@ -9,7 +9,9 @@ multi-body input is the volume where its generalized winding number is above 1/2
 
 from __future__ import annotations
 
+import gpytoolbox
 import numpy as np
+import point_cloud_utils as pcu
 import trimesh
 
 SAMPLES = 20_000  # points sampled on each surface
@@ -17,8 +19,6 @@ GRID = 64  # winding-number grid cells along the longest side (open inputs only)
 
 
 def _closest_distances(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    import point_cloud_utils as pcu
-
     d, _, _ = pcu.closest_points_on_mesh(np.ascontiguousarray(points, np.float64),
                                          np.ascontiguousarray(vertices, np.float64),
                                          np.ascontiguousarray(faces, np.int32))
@@ -34,8 +34,6 @@ def surface_points(mesh: trimesh.Trimesh, samples: int = SAMPLES, seed: int = 0)
 
 def closest_points(points: np.ndarray, mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     """The closest point of ``mesh``'s surface to each of ``points`` ``(P, 3)``: ``(P, 3)`` points, ``(P,)`` distances."""
-    import point_cloud_utils as pcu
-
     v = np.ascontiguousarray(mesh.vertices, np.float64)
     f = np.ascontiguousarray(mesh.faces, np.int32)
     d, fi, bc = pcu.closest_points_on_mesh(np.ascontiguousarray(points, np.float64), v, f)
@@ -51,8 +49,6 @@ def enclosed_volume(mesh: trimesh.Trimesh, grid: int = GRID) -> float:
     """
     if mesh.is_watertight and mesh.is_winding_consistent:
         return abs(float(mesh.volume))
-    import gpytoolbox
-
     lo, hi = np.asarray(mesh.bounds, np.float64)
     step = float((hi - lo).max()) / grid
     axes = [lo[i] + step * (np.arange(max(1, int(np.ceil((hi[i] - lo[i]) / step)))) + 0.5) for i in range(3)]
@@ -100,8 +96,6 @@ def measure(reference: trimesh.Trimesh, result: trimesh.Trimesh, mm_per_unit: fl
 def _inner(points: np.ndarray, reference: trimesh.Trimesh) -> np.ndarray:
     """Which of ``points`` (on ``reference``) lie inside ``reference``'s own solid (winding number > 3/4: a face
     between two touching bodies, a lid's underside inside a closed can); the outer surface has 1/2."""
-    import gpytoolbox
-
     winding = gpytoolbox.fast_winding_number(np.asarray(points, np.float64), np.asarray(reference.vertices, np.float64),
                                              np.asarray(reference.faces, np.int64))
     return np.abs(winding) > 0.75

@@ -3,8 +3,8 @@
 GRT's method assumes watertight, manifold triangle meshes (paper, lines 187-189). Every mesh that
 enters the system goes through :func:`load_mesh` (a built-in object name or a file path) or
 :func:`prepare_mesh` (an in-memory mesh): problems are repaired when that is safe and recorded in
-``mesh.metadata["grt_repairs"]``, or rejected with a :class:`MeshError` that names the problem and
-the fix. A mesh is never silently used as it came.
+``mesh.metadata["grt_repairs"]``, or rejected with a :class:`~grt.geometry.validation.MeshError` that
+names the problem and the fix. A mesh is never silently used as it came.
 """
 
 from __future__ import annotations
@@ -17,14 +17,14 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from grt.errors import UserError
+from grt.geometry import fidelity
+from grt.geometry.indices import file_vertices
+from grt.geometry.prepare import MeshSettings, Solid, remesh, remesh_decision, solidify
 from grt.geometry.quality import nominal_crossings
+from grt.geometry.validation import MeshError, mesh_problems
+from grt.objects import UnknownObjectError, get_object, list_objects
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
-
-
-class MeshError(UserError):
-    """A mesh that cannot be used; the message says what is wrong and how to fix it."""
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -53,8 +53,6 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str | None = No
         MeshError: unreadable, empty or unusable file (the message names the problem and the fix).
         grt.objects.UnknownObjectError: neither a built-in name nor an existing file.
     """
-    from grt.objects import UnknownObjectError, get_object, list_objects
-
     start = time.perf_counter()
     read_as = None  # vertices of a file as read
     text = str(spec)
@@ -88,6 +86,34 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str | None = No
     prep.update(source=source, scale=float(scale))
     prep["timings_s"]["total"] = round(time.perf_counter() - start, 4)  # reading the file included
     return mesh
+
+
+def prepare_report(spec: str | Path, scale: float = 1.0, **settings) -> dict:
+    """Load one object and return a flat row for a measurement table (``python -m grt.bench meshes``).
+
+    Args:
+        spec: a built-in object name or a mesh file path.
+        scale: meters per mesh unit (``object_scale``).
+        **settings: :class:`~grt.geometry.prepare.MeshSettings` fields; ``remesh`` defaults to ``"auto"``
+            here (the apps' setting).
+
+    Returns:
+        ``object, input_faces, prepared_faces, prepared_vertices, repairs (list), remesh (decision),
+        volume_ratio, hausdorff_mm, chamfer_mm, prepare_s`` and ``timings_s``; or ``object, error`` when
+        the mesh is refused (the one-line message).
+    """
+    settings.setdefault("remesh", "auto")
+    start = time.perf_counter()
+    try:
+        mesh = load_mesh(spec, scale=scale, settings=MeshSettings(**settings))
+    except MeshError as exc:
+        return {"object": str(spec), "error": str(exc), "prepare_s": round(time.perf_counter() - start, 3)}
+    prep = mesh.metadata["grt_prepare"]
+    return {"object": str(spec), "input_faces": prep["input"]["faces"], "prepared_faces": prep["output"]["faces"],
+            "prepared_vertices": prep["output"]["vertices"], "repairs": prep["repairs"],
+            "remesh": prep["remesh"]["decision"], **{k: prep["fidelity"][k] for k in
+                                                      ("volume_ratio", "hausdorff_mm", "chamfer_mm")},
+            "prepare_s": prep["timings_s"]["total"], "timings_s": prep["timings_s"]}
 
 
 # An object a tabletop robot handles: at most 1 m and at least 5 mm along its largest side (meters).
@@ -126,8 +152,6 @@ def _note_reading(path: Path, read_as: int, mesh: trimesh.Trimesh) -> None:
     """Record, first among the repairs, that reading the file already changed its vertex list."""
     if path.suffix.lower() != ".obj":
         return
-    from grt.geometry.indices import file_vertices
-
     written = len(file_vertices(path))
     if written != read_as:
         note = (f"read the file's {written} vertices as {read_as} (unreferenced vertices dropped, vertices on "
@@ -150,54 +174,7 @@ def _read_file(path: Path) -> trimesh.Trimesh:
     return loaded
 
 
-# ------------------------------------------------------------------------- validation and repair
-def mesh_problems(mesh: trimesh.Trimesh) -> list[str]:
-    """Everything that keeps ``mesh`` from being used as it is (empty list: valid).
-
-    Checks: finite vertices, no degenerate or duplicate faces, no unreferenced vertices, watertight
-    (every edge shared by exactly two faces), manifold (manifold3d accepts it, which also rejects
-    non-manifold vertices), consistent outward winding, one connected component.
-    """
-    problems = []
-    if len(mesh.faces) == 0:
-        return ["mesh has no faces"]
-    if not np.all(np.isfinite(mesh.vertices)):
-        problems.append(f"{int((~np.isfinite(mesh.vertices)).any(1).sum())} vertices are NaN/inf")
-        return problems
-    n_degenerate = int(len(mesh.faces) - mesh.nondegenerate_faces(height=1e-12).sum())
-    if n_degenerate:
-        problems.append(f"{n_degenerate} degenerate (zero-area) faces")
-    n_dup = int(len(mesh.faces) - mesh.unique_faces().sum())
-    if n_dup:
-        problems.append(f"{n_dup} duplicate faces")
-    referenced = np.zeros(len(mesh.vertices), bool)
-    referenced[mesh.faces.ravel()] = True
-    if not referenced.all():
-        problems.append(f"{int((~referenced).sum())} unreferenced vertices")
-    if not mesh.is_watertight:
-        problems.append("not watertight (has holes or open boundary edges)")
-    elif not manifold3d_accepts(mesh):
-        problems.append("not manifold (manifold3d rejects it: non-manifold edges or vertices)")
-    if mesh.is_watertight and not mesh.is_winding_consistent:
-        problems.append("inconsistent face winding")
-    elif mesh.is_watertight and mesh.volume < 0:
-        problems.append("faces point inwards (negative volume)")
-    n_comp = len(trimesh.graph.connected_components(mesh.face_adjacency, nodes=np.arange(len(mesh.faces)),
-                                                    min_len=1))
-    if n_comp > 1:
-        problems.append(f"{n_comp} connected components")
-    return problems
-
-
-def manifold3d_accepts(mesh: trimesh.Trimesh) -> bool:
-    """Whether manifold3d accepts ``mesh`` as a closed manifold solid."""
-    import manifold3d
-
-    m = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.vertices, np.float32),
-                                            tri_verts=np.asarray(mesh.faces, np.uint32)))
-    return m.status() == manifold3d.Error.NoError and m.num_tri() > 0
-
-
+# ------------------------------------------------------------------------------------- repair
 def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | None = None,
                  settings=None, builtin: bool = False, mm_per_unit: float = 1000.0) -> trimesh.Trimesh:
     """Validate an in-memory mesh, repair it faithfully, remesh it if asked, and check what changed.
@@ -224,10 +201,7 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
         MeshError: NaN/inf vertices, an empty mesh, a mesh that cannot be repaired, separate bodies, or a
             repair that changed the object more than ``settings`` allow.
     """
-    from grt.geometry import fidelity
-    from grt.geometry import prepare as prep
-
-    settings = settings or prep.MeshSettings()
+    settings = settings or MeshSettings()
     if components is not None and components != settings.components:
         settings = replace(settings, components=components)
     if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
@@ -243,16 +217,16 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
     if problems and not repair:
         raise MeshError(f"invalid mesh: {'; '.join(problems)}. Repair it (e.g. pymeshfix, MeshLab) "
                         "or load it with repair=True.")
-    solid = prep.Solid(out, out)
+    solid = Solid(out, out)
     edge = settings.edge_length * float(np.linalg.norm(out.extents))  # target edge length, mesh units
     if problems:
-        solid = prep.solidify(_basic_cleanup(out, repairs), settings.components, repairs, edge,
-                              settings.watertight_resolution)
+        solid = solidify(_basic_cleanup(out, repairs), settings.components, repairs, edge,
+                         settings.watertight_resolution)
     out = solid.mesh
     t1 = time.perf_counter()
-    remeshed, decision = prep.remesh_decision(out, settings, edge, builtin, solid.must_remesh)
+    remeshed, decision = remesh_decision(out, settings, edge, builtin, solid.must_remesh)
     if remeshed:
-        out = prep.remesh(out, edge, repairs)
+        out = remesh(out, edge, repairs)
     remaining = mesh_problems(out)
     if settings.components == "keep":
         remaining = [p for p in remaining if "connected components" not in p]

@@ -19,20 +19,21 @@ Steps (each recorded in ``mesh.metadata["grt_repairs"]``, the figures in ``mesh.
    objects are kept as they are.
 4. Fidelity (:mod:`grt.geometry.fidelity`): volume ratio, two-sided Hausdorff and Chamfer distance (mm)
    between the input surface and the result; above ``fidelity_mm`` or ``volume_tol`` a one-line
-   :class:`~grt.geometry.mesh.MeshError` says what changed and how to fix it.
+   :class:`~grt.geometry.validation.MeshError` says what changed and how to fix it.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import asdict, dataclass, fields
-from pathlib import Path
 
+import gpytoolbox
+import manifold3d
 import numpy as np
+import point_cloud_utils as pcu
 import trimesh
 
 from grt.geometry import fidelity
-from grt.geometry.mesh import MeshError, manifold3d_accepts
+from grt.geometry.validation import MeshError, manifold3d_accepts
 
 REMESH_MODES = ("auto", "on", "off")
 COMPONENT_POLICIES = ("union", "largest", "error", "keep")
@@ -105,8 +106,6 @@ class Solid:
 
 
 def _to_manifold(mesh: trimesh.Trimesh):
-    import manifold3d
-
     return manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.asarray(mesh.vertices, np.float64),
                                                  tri_verts=np.asarray(mesh.faces, np.uint32)))
 
@@ -183,8 +182,6 @@ def solidify(mesh: trimesh.Trimesh, components: str, repairs: list[str], edge: f
 
 def _unite(parts: list[trimesh.Trimesh], components: str, repairs: list[str], edge: float,
            resolution: int) -> Solid:
-    import manifold3d
-
     union = manifold3d.Manifold.batch_boolean([_to_manifold(p) for p in parts], manifold3d.OpType.Add)
     bodies = sorted(union.decompose(), key=lambda b: -b.volume())
     faces = sum(len(p.faces) for p in parts)
@@ -245,8 +242,6 @@ def _bounds(solid) -> tuple[np.ndarray, np.ndarray]:
 
 def _convert(mesh: trimesh.Trimesh, components: str, repairs: list[str], resolution: int) -> Solid:
     """Close an open or non-manifold surface: watertight manifold conversion, then projection onto the input."""
-    import point_cloud_utils as pcu
-
     v = np.ascontiguousarray(mesh.vertices, np.float64)
     f = np.ascontiguousarray(mesh.faces, np.int32)
     vw, fw = pcu.make_mesh_watertight(v, f, resolution=resolution, seed=0)
@@ -330,8 +325,6 @@ def remesh(mesh: trimesh.Trimesh, edge: float, repairs: list[str]) -> trimesh.Tr
     first split flat to edges <= ``edge`` (the surface does not move) and its crease vertices are kept
     fixed, so that the remeshing keeps sharp edges and corners instead of cutting them.
     """
-    import gpytoolbox
-
     budget = target_faces(mesh, edge)
     v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
     fixed = np.zeros(0, np.int32)
@@ -423,35 +416,6 @@ def describe(mesh: trimesh.Trimesh) -> list[str]:
                      "(kept as given; a candidate is judged by the crossings it adds). Fix the input in a "
                      "modelling tool for a printable object")
     return lines
-
-
-def prepare_report(spec: str | Path, scale: float = 1.0, **settings) -> dict:
-    """Prepare one object and return a flat row for a measurement table (``python -m grt.bench meshes``).
-
-    Args:
-        spec: a built-in object name or a mesh file path.
-        scale: meters per mesh unit (``object_scale``).
-        **settings: :class:`MeshSettings` fields; ``remesh`` defaults to ``"auto"`` here (the apps' setting).
-
-    Returns:
-        ``object, input_faces, prepared_faces, prepared_vertices, repairs (list), remesh (decision),
-        volume_ratio, hausdorff_mm, chamfer_mm, prepare_s`` and ``timings_s``; or ``object, error`` when
-        the mesh is refused (the one-line message).
-    """
-    from grt.geometry.mesh import load_mesh
-
-    settings.setdefault("remesh", "auto")
-    start = time.perf_counter()
-    try:
-        mesh = load_mesh(spec, scale=scale, settings=MeshSettings(**settings))
-    except MeshError as exc:
-        return {"object": str(spec), "error": str(exc), "prepare_s": round(time.perf_counter() - start, 3)}
-    prep = mesh.metadata["grt_prepare"]
-    return {"object": str(spec), "input_faces": prep["input"]["faces"], "prepared_faces": prep["output"]["faces"],
-            "prepared_vertices": prep["output"]["vertices"], "repairs": prep["repairs"],
-            "remesh": prep["remesh"]["decision"], **{k: prep["fidelity"][k] for k in
-                                                      ("volume_ratio", "hausdorff_mm", "chamfer_mm")},
-            "prepare_s": prep["timings_s"]["total"], "timings_s": prep["timings_s"]}
 
 
 def settings_record(settings: MeshSettings) -> dict:

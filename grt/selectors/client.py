@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from grt.errors import UserError
+from grt.fileio import write_text_atomic
 
 log = logging.getLogger(__name__)
 
@@ -146,9 +147,7 @@ class ResponseCache:
         self.directory.mkdir(parents=True, exist_ok=True)
         record = {"key": key, "model": model, "base_url": base_url, "created": time.time(), "attempts": attempts,
                   "messages": _redact_images(messages), "response": response}
-        tmp = self.path(key).with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(record, indent=1))
-        tmp.replace(self.path(key))
+        write_text_atomic(self.path(key), json.dumps(record, indent=1))
 
 
 def _content_text(content) -> str:

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from grt.geometry.mesh import MeshError, load_mesh, mesh_hash, prepare_mesh
-from grt.geometry.prepare import MeshSettings, describe, prepare_report
+from grt.geometry.mesh import load_mesh, mesh_hash, prepare_mesh, prepare_report
+from grt.geometry.prepare import MeshSettings, describe
+from grt.geometry.validation import MeshError
 from grt.objects import get_object
 from tests.geometry import _cases
 
