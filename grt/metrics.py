@@ -1,4 +1,9 @@
-"""The paper's red-teaming metrics (appendix, lines 753-818), computed from per-candidate scores.
+"""Run metrics over the scores of a red-team run: the paper's red-teaming metrics (appendix, lines 753-818)
+computed from per-candidate scores (degradation curve, Final Drop, Iter@50%, AUC, ΔComplexity), and the 95%
+intervals of one candidate's score (:func:`score_interval`).
+
+What a score *is* (its name, unit, interval method and the task's nominal floor) is :mod:`grt.scores`; the
+metrics here are relative to ``S0`` and do not need to know.
 
 Conventions (stated because the paper leaves them open):
 

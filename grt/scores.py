@@ -1,4 +1,10 @@
-"""What a task's score is: its name, unit and interval method, read once from the task config.
+"""A task's score semantics: what one trial's score is, how it is named and bounded (:class:`ScoreSpec`), and
+the nominal floor below which a run stops.
+
+This module says *what* is measured; :mod:`grt.metrics` computes the run metrics *over* the scores (the
+degradation curve, Final Drop, Iter@50%, AUC, ΔComplexity) and the intervals of a candidate's score. A task's
+score settings are read from its config in one place, :meth:`ScoreSpec.from_task` (a run's ``summary.json``
+stores the same fields, read back by :meth:`ScoreSpec.from_summary`).
 
 A binary task (``score: success``, no ``score_unit``) scores a candidate by its success rate; a
 continuous task (e.g. ``score: opening``, ``score_unit: m``) by the mean of a per-trial value. The red
@@ -61,16 +67,19 @@ class ScoreSpec:
 
     @classmethod
     def from_task(cls, task: Mapping | None) -> ScoreSpec:
-        """The spec of a task config (a dict or DictConfig); absent keys take their defaults."""
+        """The spec of a task config (a dict or DictConfig); absent or empty keys take their defaults."""
         task = task if task is not None else {}
-        return cls(name=str(task.get("score") or "success"), unit=str(task.get("score_unit") or ""),
-                   ci=str(task.get("ci") or "auto"))
+        return cls._given(task.get("score"), task.get("score_unit"), task.get("ci"))
 
     @classmethod
     def from_summary(cls, summary: Mapping) -> ScoreSpec:
-        """The spec stored in a ``summary.json`` (summaries written before it: a success rate)."""
-        return cls(name=str(summary.get("score_name") or "success"),
-                   unit=str(summary.get("score_unit") or ""), ci=str(summary.get("ci") or "auto"))
+        """The spec stored in a ``summary.json`` (:meth:`fields`; summaries written before it: a success rate)."""
+        return cls._given(summary.get("score_name"), summary.get("score_unit"), summary.get("ci"))
+
+    @classmethod
+    def _given(cls, name, unit, ci) -> ScoreSpec:
+        """The spec of the given settings; ``None`` or ``""`` takes the field's default."""
+        return cls(name=str(name or cls.name), unit=str(unit or cls.unit), ci=str(ci or cls.ci))
 
     @property
     def binary(self) -> bool:

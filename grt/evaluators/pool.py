@@ -16,6 +16,7 @@ import gc
 import logging
 import multiprocessing as mp
 import os
+import signal
 import sys
 import time
 import traceback
@@ -25,6 +26,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
 
+import hydra.utils
 import numpy as np
 import trimesh
 
@@ -67,16 +69,12 @@ def sim_error(seed: int, reason: str, **info) -> TrialOutcome:
 
 def build_session(task: dict, policy: dict):
     """Instantiate ``task["session"]`` with the instantiated ``policy`` (plain dicts, Hydra style)."""
-    import hydra.utils
-
     return hydra.utils.instantiate(task["session"], policy=hydra.utils.instantiate(policy), _convert_="all")
 
 
 # ------------------------------------------------------------------------------------ worker side
 def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None = None) -> None:
     """Worker process entry: build the session, then run jobs until told to stop (``None``)."""
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to report; it stops us
     try:
         session = build_session(task, policy)
@@ -130,8 +128,6 @@ def _use_policy(session, policy: dict | None, using: dict) -> str | None:
     """Give the session the job's policy when it differs from the one it has (by config, and by the
     checkpoint file's modification time: a file rewritten in place is a new policy); a job without
     one gets the pool's own policy back."""
-    import hydra.utils
-
     if policy is None:
         if using["key"] is None:
             return None

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from tqdm import tqdm
 
 from grt.evaluators.base import CandidateResult, Evaluator
 from grt.evaluators.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
@@ -149,6 +150,4 @@ class SimEvaluator(Evaluator):
     def _progress_bar(self, total: int):
         if not self.progress or not total:
             return None
-        from tqdm import tqdm
-
         return tqdm(total=total, desc="trials", unit="trial", leave=False)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as sla
 
 
 class SparseCholesky:
@@ -49,8 +50,6 @@ class SparseCholesky:
                 return
         if backend != "scipy":
             raise ValueError(f"unknown backend {backend!r}")
-        import scipy.sparse.linalg as sla
-
         self._impl = sla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A")
         self.backend = "scipy"
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
 from grt.errors import UserError
@@ -55,8 +56,6 @@ def dummy_obs(obs_spec: dict, batch: int = 1) -> TensorDict:
 
 def build_actor(grt_cfg: dict):
     """The rsl-rl actor model described by a checkpoint's ``grt`` config (untrained weights)."""
-    from rsl_rl.utils import resolve_class
-
     train = grt_cfg["train_cfg"]
     actor_class, actor_cfg = resolve_class(dict(train["actor"]))
     obs = dummy_obs(grt_cfg["obs_spec"])

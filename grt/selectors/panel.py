@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import io
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
 LABELS = "ABCD"
 
@@ -64,8 +67,6 @@ def _shade(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _draw_view(ax, vertices, faces, colors, points, names, highlight, view, alpha, label) -> None:
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     ax.computed_zorder = False  # keypoints and numbers stay visible through the translucent mesh
     rgba = _shade(vertices, faces)
     rgba[:, 3] = alpha
@@ -107,11 +108,7 @@ def render_panel(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     Returns:
         PNG bytes of a ``size_px x size_px`` RGB image.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    matplotlib.use("Agg", force=False)  # at drawing time, not on import: a user's backend stays until then
     vertices, faces, points = np.asarray(vertices), np.asarray(faces), np.asarray(points).reshape(-1, 3)
     highlight = np.zeros(len(points), bool) if highlight is None else np.asarray(highlight, bool)
     views = hemisphere_views(num_views)[diverse_views(hemisphere_views(num_views))]

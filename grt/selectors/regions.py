@@ -14,6 +14,8 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
+from grt.objects import object_regions
+
 RegionSpec = Mapping | str
 
 
@@ -22,8 +24,6 @@ def named_region_box(spec: str) -> np.ndarray:
     obj, sep, name = spec.partition(":")
     if not sep or not obj or not name:
         raise ValueError(f"region {spec!r}: a named region is written 'OBJECT:REGION', e.g. 'mug:handle'")
-    from grt.objects import object_regions
-
     regions = object_regions(obj)
     if name not in regions:
         raise ValueError(f"object {obj!r} has no region {name!r}; its regions are: {', '.join(sorted(regions))}")

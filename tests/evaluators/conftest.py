@@ -4,17 +4,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import manifold3d as m3
 import numpy as np
 import pytest
 import trimesh
+
+from grt.geometry.deform import ShapeDeformer
 
 HERE = Path(__file__).parent
 
 
 def u_shape() -> trimesh.Trimesh:
     """A 6 x 3 x 5 cm U-shaped block (a slot cut from the top), resting on z = 0, ~1.2k faces."""
-    import manifold3d as m3
-
     outer = m3.Manifold.cube([0.06, 0.03, 0.05])
     slot = m3.Manifold.cube([0.03, 0.04, 0.04]).translate([0.015, -0.005, 0.012])
     solid = (outer - slot).translate([-0.03, -0.015, 0.0]).refine_to_length(0.006).to_mesh()
@@ -29,8 +30,6 @@ def u_mesh() -> trimesh.Trimesh:
 @pytest.fixture(scope="session")
 def u_deformed(u_mesh) -> trimesh.Trimesh:
     """The U-shape with its two top corners pulled apart (~3 mm), same faces."""
-    from grt.geometry.deform import ShapeDeformer
-
     v = u_mesh.vertices
     anchors = np.flatnonzero(v[:, 2] < 1e-6)
     top = np.flatnonzero(v[:, 2] > 0.05 - 1e-6)

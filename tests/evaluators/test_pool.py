@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from omegaconf import OmegaConf
 
 from grt.evaluators.sim import SimEvaluator
 
@@ -84,8 +85,6 @@ def test_render_writes_one_picture_per_trial(toy_configs, u_mesh, cache_dir, tmp
 
 
 def test_configs_must_be_plain_dicts(u_mesh):
-    from omegaconf import OmegaConf
-
     with pytest.raises(ValueError, match="plain dict"):
         SimEvaluator(OmegaConf.create({"session": {}}), {}, nominal=u_mesh)
 

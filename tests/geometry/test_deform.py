@@ -11,6 +11,7 @@ from grt.geometry.chamfer import chamfer_distance
 from grt.geometry.deform import JacobianFieldDeformer, ShapeDeformer
 from grt.geometry.mesh import procrustes
 from grt.geometry.operators import gradient_operator, laplacian, mass_matrix
+from grt.objects import get_object
 
 
 @pytest.fixture(scope="module")
@@ -96,8 +97,6 @@ def test_procrustes_recovers_rigid_motion(rng):
 
 
 def test_shape_deformer_metric_output_and_alignment(rng):
-    from grt.objects import get_object
-
     mesh = get_object("can")
     v = np.asarray(mesh.vertices)
     d = ShapeDeformer(mesh, np.argsort(-v[:, 2])[:3], np.flatnonzero(v[:, 2] < 0.01))

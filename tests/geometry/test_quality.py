@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
 
 from grt.geometry.deform import JacobianFieldDeformer, ShapeDeformer
+from grt.geometry.mesh import load_mesh
+from grt.geometry.prepare import MeshSettings, describe
 from grt.geometry.quality import candidate_validity, inverted_faces, self_intersections, spike_ratios
 from grt.objects import get_object
 from grt.selectors.heuristic import HeuristicSelector
@@ -33,11 +37,6 @@ def test_overlapping_bodies_and_a_crushed_wall_are_found():
 
 
 def test_a_candidate_is_judged_by_the_crossings_it_adds_not_the_inputs_own():
-    from pathlib import Path
-
-    from grt.geometry.mesh import load_mesh
-    from grt.geometry.prepare import MeshSettings, describe
-
     # pybullet's duck crosses itself in 2 face pairs as shipped: reported when loaded, not the candidate's
     duck = load_mesh(Path(__file__).parents[1] / "data/real/duck.obj", scale=0.05, settings=MeshSettings(remesh="auto"))
     assert duck.metadata["grt_prepare"]["output"]["self_intersections"] == 2

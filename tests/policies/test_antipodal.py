@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from omegaconf import OmegaConf
 
 from grt.policies.antipodal import (
     AntipodalGraspPolicy,
@@ -145,8 +146,6 @@ def test_user_predictor_is_retried():
 
 
 def test_predictor_defaults_match_the_policy_config():
-    from omegaconf import OmegaConf
-
     cfg = OmegaConf.load(Path(__file__).parents[2] / "conf" / "policy" / "antipodal.yaml")
     kwargs = {k: v for k, v in OmegaConf.to_container(cfg).items() if k != "_target_"}
     AntipodalGraspPolicy(**kwargs)  # every key is a real argument
