@@ -1,4 +1,4 @@
-"""``python -m grt.report PATH [--csv OUT.csv]``: the paper's columns for a run or a multirun folder.
+"""The paper's columns for a run or a multirun folder (the library behind ``python -m grt.report``).
 
 Reads only ``summary.json`` files (and ``error.txt`` of failed jobs), or the ``summary_<name>.json`` copies
 that ``experiments/`` keeps of them, so a committed table renders as its sweep did: Final Drop (%), ΔComplexity,
@@ -7,21 +7,25 @@ episodes, ``budget.confirm_trials``: the rank-1 drop and how many of the k drops
 the mean over runs of each (selector, optimizer) method and σ, the way the paper aggregates objects into
 Tables 1 and 2 (σ is part of the key: a folder that holds several σ does not average them together). S0 and the best score are in the task's own score, named
 per run (``success rate``, ``mean opening (m)``); the other columns are relative to S0, unit-free.
-A mistake (no such folder, no or a broken ``summary.json``, a ``--csv`` path that cannot be written) is
-one ``error:`` line and exit code 2.
+Blue-team tables (``table3*.json``, written by ``python -m grt.blueteam``) render in the paper's Table 3
+columns. A README keeps a generated table between ``<!-- grt.report PATH [--records] -->`` and
+``<!-- /grt.report -->`` (``PATH`` relative to the README's folder); :func:`update_readmes` rewrites those
+blocks from the files, so a committed table is never typed by hand.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import json
 import math
+import re
+import shlex
 from collections import defaultdict
 from pathlib import Path
 
-from grt.errors import check_output_file, exit_on_user_error, write_output
+from grt.errors import UserError
+from grt.fileio import write_text_atomic
 from grt.scores import ScoreSpec
 
 COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name",
@@ -30,7 +34,7 @@ COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed",
 REQUIRED = ("task", "object", "selector", "optimizer", "final_drop", "delta_complexity", "iter_at_50", "auc")
 
 
-class ReportError(ValueError):
+class ReportError(UserError):
     """A folder or summary the report cannot read; the message names it and the fix."""
 
 
@@ -50,6 +54,7 @@ def collect(root: Path) -> tuple[list[dict], list[Path]]:
     for path in sorted(p for p in root.rglob("summary*.json") if _is_summary_name(p.name)):
         data = read_summary(path)
         data["run"] = str(path.parent)
+        data["file"] = str(path)
         spec = ScoreSpec.from_summary(data)  # summaries written before score_name: a success rate
         data.setdefault("score_name", spec.name)
         data.setdefault("score_unit", spec.unit)
@@ -158,27 +163,139 @@ def _confirm_cell(r: dict) -> str:
     return f"{_fmt(conf['confirmed_final_drop'], 'pct')} ({conf['confirmed']}/{len(conf['shapes'])}) | "
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m grt.report", description=__doc__.splitlines()[0])
-    ap.add_argument("path", type=Path, help="a run folder or a multirun folder")
-    ap.add_argument("--csv", type=Path, help="also write the per-run rows as CSV (into an existing folder)")
-    args = ap.parse_args(argv)
-    with exit_on_user_error(ReportError):
-        if args.csv:
-            check_output_file(args.csv, (".csv",), "--csv")  # before reading anything
-        rows, failed = collect(args.path)
-        if not rows and not failed:
-            raise ReportError(f"no summary.json (or summary_<name>.json) under {args.path}: is it a finished GRT "
-                              "run folder?")
-        print(markdown(rows, aggregate(rows), failed))
-        if args.csv:
-            text = io.StringIO(newline="")
-            w = csv.DictWriter(text, fieldnames=COLUMNS, extrasaction="ignore")
-            w.writeheader()
-            w.writerows(rows)
-            write_output(args.csv, text.getvalue(), "--csv PATH")
-            print(f"\nwrote {args.csv}")
+def csv_text(rows: list[dict]) -> str:
+    """The per-run rows as CSV (the :data:`COLUMNS`)."""
+    text = io.StringIO(newline="")
+    w = csv.DictWriter(text, fieldnames=COLUMNS, extrasaction="ignore")
+    w.writeheader()
+    w.writerows(rows)
+    return text.getvalue()
 
 
-if __name__ == "__main__":
-    main()
+# --- Table 3 (blue-teaming) -------------------------------------------------------------------------
+
+TABLE3_KEYS = ("policy", "geometry", "orig", "blue", "nominal_before", "nominal_after", "heldout_before",
+               "heldout_after")
+
+
+def collect_table3(root: Path) -> list[tuple[Path, list[dict]]]:
+    """Every ``table3*.json`` under ``root`` (a blue-team folder's ``table3.json`` or the copies
+    ``experiments/`` keeps), each with its rows.
+
+    Raises:
+        ReportError: a file is not a list of Table 3 rows.
+    """
+    root = root.parent if root.is_file() else root
+    out = []
+    for path in sorted(root.rglob("table3*.json")):
+        try:
+            rows = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ReportError(f"{path}: cannot read it ({exc}); delete or restore the file") from None
+        if not isinstance(rows, list) or any(not isinstance(r, dict) or set(TABLE3_KEYS) - set(r) for r in rows):
+            raise ReportError(f"{path}: not a Table 3 file (rows with {', '.join(TABLE3_KEYS)}); report on "
+                              "folders written by python -m grt.blueteam")
+        out.append((path, rows))
+    return out
+
+
+def table3_markdown(path: Path, rows: list[dict], root: Path) -> str:
+    """One blue-team table: success rates in %, a continuous score (a drawer's opening) as stored.
+
+    The rows carry no score name; a success rate is told by its values: every per-geometry score times
+    ``trials`` is a whole number of episodes.
+    """
+    binary = all(abs(r[k] * r.get("trials", 0) - round(r[k] * r.get("trials", 0))) < 1e-6
+                 for r in rows for k in ("orig", "blue", "nominal_before", "nominal_after"))
+    cell = (lambda v: f"{100 * v:.1f}") if binary else (lambda v: f"{v:.3f}")
+    unit = "success %" if binary else "mean score, as stored"
+    lines = [f"`{_relative(path, root)}` ({rows[0].get('trials', '?')} held-out episodes per geometry, "
+             f"{unit}):", "",
+             "| policy | fine-tune | geometry | Orig. | Blue. | Nominal before | Nominal after | Held-out before "
+             "| Held-out after |", "|" + "---|" * 9]
+    for r in rows:
+        lines.append(f"| {r['policy']} | {r.get('fine_tune', '-')} | {r['geometry']} | "
+                     + " | ".join(cell(r[k]) for k in TABLE3_KEYS[2:]) + " |")
+    return "\n".join(lines)
+
+
+# --- Records: what a folder holds and which commit wrote it -----------------------------------------
+
+def records_markdown(rows: list[dict], root: Path) -> str:
+    """Each summary with the commit that wrote it (``git`` of ``summary.json``) and its search settings."""
+    lines = ["| summary | commit | dirty | population x iterations x trials | σ | τ (m) | seed |", "|" + "---|" * 7]
+    for r in rows:
+        git = r.get("git") or {}
+        commit = (git.get("commit") or "-")[:9] if isinstance(git, dict) else str(git)[:9]
+        dirty = git.get("dirty") if isinstance(git, dict) else None
+        size = " x ".join(_fmt(r.get(k)) for k in ("population", "iterations", "trials"))
+        lines.append(f"| `{_relative(Path(r['file']), root)}` | {commit} | {'yes' if dirty else 'no' if dirty is False else '-'} "
+                     f"| {size} | {_fmt(r.get('sigma'), 'g')} | {_fmt(r.get('tau'), 'g')} | {_fmt(r.get('seed'))} |")
+    return "\n".join(lines)
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return str(path.relative_to(root.parent if root.is_file() else root))
+    except ValueError:
+        return str(path)
+
+
+def render(root: Path, records: bool = False) -> str:
+    """The record of a folder: its run table (:func:`markdown`), its Table 3 tables, and with
+    ``records`` the commit of every summary.
+
+    Raises:
+        ReportError: no such folder, nothing to report in it, or a file that is not GRT's.
+    """
+    rows, failed = collect(root)
+    tables = collect_table3(root) if root.exists() else []
+    if not rows and not failed and not tables:
+        raise ReportError(f"no summary.json (or summary_<name>.json, table3*.json) under {root}: is it a finished "
+                          "GRT run folder?")
+    parts = [markdown(rows, aggregate(rows), failed)] if rows or failed else []
+    parts += [table3_markdown(path, t, root) for path, t in tables]
+    if records and rows:
+        parts.append(records_markdown(rows, root))
+    return "\n\n".join(parts)
+
+
+# --- README blocks ----------------------------------------------------------------------------------
+
+BLOCK = re.compile(r"(<!-- grt\.report (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- /grt\.report -->)", re.S)
+
+
+def update_readme(readme: Path) -> bool:
+    """Rewrite every ``<!-- grt.report PATH [--records] -->`` block of ``readme`` from its files.
+
+    Returns:
+        Whether the file changed (a second call on an unchanged folder returns False).
+
+    Raises:
+        ReportError: a block names a folder with nothing to report, or an unknown option.
+    """
+    text = readme.read_text()
+
+    def block(m: re.Match) -> str:
+        args = shlex.split(m.group("args"))
+        unknown = [a for a in args[1:] if a != "--records"]
+        if not args or unknown:
+            raise ReportError(f"{readme}: a grt.report block takes a folder and --records, not "
+                              f"{m.group('args')!r}")
+        body = render(readme.parent / args[0], records="--records" in args)
+        return f"{m.group(1)}{body}\n{m.group(4)}"
+
+    new = BLOCK.sub(block, text)
+    if new == text:
+        return False
+    write_text_atomic(readme, new)
+    return True
+
+
+def update_readmes(root: Path) -> list[Path]:
+    """:func:`update_readme` on every ``README.md`` under ``root`` with a block; the ones that changed."""
+    if not root.is_dir():
+        raise ReportError(f"{root} is not a folder; give the folder whose README.md files to update "
+                          "(e.g. experiments)")
+    readmes = sorted(p for p in root.rglob("README.md") if BLOCK.search(p.read_text()))
+    return [p for p in readmes if update_readme(p)]
