@@ -1,7 +1,7 @@
 # The two commands of the README.  Both set up everything they need first (idempotent).
 PY := .venv/bin/python
 
-.PHONY: setup demo test test-fast lint bench
+.PHONY: setup demo test test-fast lint bench docs
 setup:
 	bash scripts/setup.sh
 
@@ -20,3 +20,6 @@ lint:
 bench: setup
 	$(PY) -m grt.bench deform
 	$(PY) -m grt.bench grasp
+
+docs: setup          ## regenerate the results tables of experiments/*/README.md from their files
+	$(PY) -m grt.report experiments --update-readmes

@@ -1,4 +1,4 @@
-"""Point handles vs smooth handles on the same handle displacements (README, "Deformation").
+"""Point handles vs smooth handles on the same handle displacements (docs/benchmarks.md, "Deformation").
 
     python scripts/compare_handles.py --out docs/img/handles.png
     python scripts/compare_handles.py --objects mug,tests/data/real/duck.obj:0.05 --sigma 0.06 --seed 3

@@ -8,7 +8,7 @@ hand, on the run's first evaluation episodes::
 
     .venv/bin/python scripts/in_hand_tilt.py outputs/insertion/usb_plug/manual-topdm/<time> --top 10
 
-Measured in experiments/table3_blueteam/README.md ("Why the state policy's CrashShapes are out of its reach").
+Measured in experiments/table3_blueteam/log.md ("Why the state policy's CrashShapes are out of its reach").
 """
 
 from __future__ import annotations

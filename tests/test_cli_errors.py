@@ -17,8 +17,8 @@ import pytest
 import trimesh
 
 import grt.bench.__main__ as bench_cli
+import grt.cli.report as report_cli
 import grt.deform as deform_cli
-import grt.report.__main__ as report_cli
 from grt.errors import INTERRUPTED, exit_on_user_error
 
 ROOT = Path(__file__).resolve().parents[1]

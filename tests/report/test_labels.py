@@ -9,10 +9,11 @@ import pytest
 from omegaconf import OmegaConf
 
 from grt.blueteam.core import write_table
+from grt.cli.report import main
 from grt.errors import find_user_error
 from grt.outputs import print_summary
-from grt.report.__main__ import collect, main, markdown
 from grt.report.plots import curve_figure
+from grt.report.tables import collect, markdown
 from grt.scores import ScoreConfigError, ScoreSpec
 
 OPENING = ScoreSpec(name="opening", unit="m")

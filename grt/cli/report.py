@@ -1,0 +1,52 @@
+"""``python -m grt.report PATH``: the paper's columns for a run, a multirun or an ``experiments/`` folder.
+
+``--csv OUT.csv`` also writes the per-run rows; ``--markdown`` prints a folder's record (its run table and
+its blue-team ``table3*.json`` tables), ``--records`` adds the commit that wrote each summary, and
+``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
+(``python -m grt.report experiments --update-readmes``). A mistake (no such folder, no or a broken
+``summary.json``, a ``--csv`` path that cannot be written) is one ``error:`` line and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from grt.errors import check_output_file, exit_on_user_error, write_output
+from grt.report.tables import ReportError, aggregate, collect, csv_text, markdown, render, update_readmes
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m grt.report", description=__doc__.splitlines()[0])
+    ap.add_argument("path", type=Path, help="a run folder, a multirun folder or an experiments/ folder")
+    ap.add_argument("--csv", type=Path, help="also write the per-run rows as CSV (into an existing folder)")
+    ap.add_argument("--markdown", action="store_true",
+                    help="print the folder's record: run table and blue-team (table3*.json) tables")
+    ap.add_argument("--records", action="store_true", help="with --markdown: the commit of every summary")
+    ap.add_argument("--update-readmes", action="store_true",
+                    help="rewrite the <!-- grt.report ... --> blocks of every README.md under PATH")
+    args = ap.parse_args(argv)
+    with exit_on_user_error(ReportError):
+        if args.update_readmes:
+            changed = update_readmes(args.path)
+            print("\n".join(f"updated {p}" for p in changed) or f"every README.md under {args.path} is up to date")
+            return
+        if args.csv:
+            check_output_file(args.csv, (".csv",), "--csv")  # before reading anything
+        if args.markdown or args.records:
+            print(render(args.path, records=args.records))
+            rows = collect(args.path)[0] if args.csv else []
+        else:
+            rows, failed = collect(args.path)
+            if not rows and not failed:
+                raise ReportError(f"no summary.json (or summary_<name>.json) under {args.path}: is it a finished "
+                                  "GRT run folder?")
+            print(markdown(rows, aggregate(rows), failed))
+        if args.csv:
+            write_output(args.csv, csv_text(rows), "--csv PATH")
+            print(f"\nwrote {args.csv}")
+
+
+def cli() -> None:
+    """Console script ``grt-report``."""
+    main()
