@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
-from grt.policies.base import Policy
+from grt.policies.base import BatchedPolicy
 
 
 class CheckpointError(ValueError):
@@ -62,7 +62,7 @@ def build_actor(grt_cfg: dict):
     return actor_class(obs, train["obs_groups"], "actor", int(grt_cfg["num_actions"]), **actor_cfg)
 
 
-class RslRlPolicy(Policy):
+class RslRlPolicy(BatchedPolicy):
     """An rsl-rl actor from a GRT checkpoint, acting deterministically (the distribution's mean).
 
     Args:

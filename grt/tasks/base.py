@@ -130,7 +130,7 @@ class EpisodeSession(TaskSession):
     :meth:`observe`, :meth:`judge` and :meth:`load_object`.
 
     Args:
-        policy: a :class:`grt.policies.base.Policy` (``None`` in a learning worker).
+        policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` in a learning worker).
         max_steps: control steps per episode (the episode ends earlier at success).
         rebuild_each_trial: rebuild the scene before every evaluation trial (~30 ms), so that an
             outcome depends only on (object, seed), whatever ran before in this process.

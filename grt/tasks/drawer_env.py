@@ -48,21 +48,13 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.types import SimConfig
 from sapien import physx
 
+from grt.policies.drawer_action import APPROACH, ARM_DELTA, FINGER_DELTA, GRASP_ROT
 from grt.tasks.scene import attach_convex_parts, render_mesh_shape
 
-ARM_DELTA = 0.1       # rad per control step and unit action (PD: 1 rad/s at |a| = 1)
-FINGER_DELTA = 0.015  # m per control step and unit action (a held "close" squeezes with 15 N)
 STATE_DIM = 23
 MAX_OPENING = 0.39    # m (paper)
 # The handle frame in the drawer frame: handle x -> world -y, handle y -> world z, handle z -> world -x.
 HANDLE_ROT = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-# TCP orientation for a grasp of a horizontal bar: approach (TCP z) towards the drawer (world +x),
-# pitched 20 deg down (keeps the Panda's wrist joint 6 clear of its limit), fingers (TCP y) closing in
-# the vertical plane across the bar.
-GRASP_PITCH = np.deg2rad(20.0)
-GRASP_ROT = np.array([[0.0, np.sin(GRASP_PITCH), np.cos(GRASP_PITCH)], [1.0, 0.0, 0.0],
-                      [0.0, np.cos(GRASP_PITCH), -np.sin(GRASP_PITCH)]])
-APPROACH = GRASP_ROT[:, 2]
 
 class _ClippedController(PDJointPosController):
     """Joint-delta targets (from the current joint positions) clipped to the joint limits."""

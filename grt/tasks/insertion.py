@@ -62,7 +62,7 @@ class InsertionSession(EpisodeSession):
     """Insertion episodes of one policy on one plug at a time.
 
     Args:
-        policy: a :class:`grt.policies.base.Policy` (``None`` for a learning worker).
+        policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` for a learning worker).
         socket_object: the nominal plug (built-in name or mesh path) the socket is made for.
         head_length, grip_height: the plug's connector length and grip point (m); ``None``: the
             built-in plug's values.

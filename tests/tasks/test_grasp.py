@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from grt.policies.antipodal import AntipodalGraspPolicy
-from grt.policies.base import ClosedLoopPolicy
+from grt.policies.base import GraspStepPolicy
 from grt.tasks import FAILURE_MODES, TASKS, TrialOutcome, get_task
 
 CONF = Path(__file__).parents[2] / "conf"
@@ -122,7 +122,7 @@ def test_graspable_objects_score_high(session):
         assert all(o.info["wall_s"] < 5.0 for o in outcomes)
 
 
-class _CloseWhereYouStand(ClosedLoopPolicy):
+class _CloseWhereYouStand(GraspStepPolicy):
     """A closed-loop policy that stops at once: the gripper closes on air, above the object."""
 
     def act(self, obs):
