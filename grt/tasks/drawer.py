@@ -25,7 +25,7 @@ import numpy as np
 import trimesh
 
 from grt.policies.drawer_action import GRASP_ROT
-from grt.tasks.base import EpisodeSession, TaskInputError
+from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError
 from grt.tasks.drawer_env import HANDLE_ROT, MAX_OPENING, STATE_DIM, CabinetSpec, DrawerEnv
 
 __all__ = ["DrawerEnv", "DrawerSession", "HandleFitError", "handle_grasp_point"]
@@ -105,6 +105,7 @@ class DrawerSession(EpisodeSession):
 
     num_actions = 9
     task_name = "drawer"
+    failure_modes = (*COMMON_MODES, "missed_handle", "slipped", "partial_open", "timeout")
     score_name = "opening"
     obs_spec = {"state": (STATE_DIM,)}
 

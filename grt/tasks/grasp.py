@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 from grt.policies.base import GraspObservation, GraspStepPolicy
-from grt.tasks.base import TaskSession, TrialOutcome
+from grt.tasks.base import COMMON_MODES, TaskSession, TrialOutcome
 from grt.tasks.grasp_env import GraspEnv  # registers GRT-Grasp-v1 (env docstring: Description, ...)
 from grt.tasks.motion import PandaIK, offset_along_approach, rotate_about_z, translated
 
@@ -59,6 +59,8 @@ class GraspSession(TaskSession):
             hold``.
         max_policy_steps: step budget of a closed-loop policy.
     """
+
+    failure_modes = (*COMMON_MODES, "no_grasp_found", "unreachable", "missed", "dropped_lift", "dropped_shake")
 
     def __init__(self, policy, env_id: str = "GRT-Grasp-v1", num_cameras: int = 6, camera_width: int = 360,
                  camera_height: int = 240, xy_range: float = 0.02, yaw_range: float = 0.79,

@@ -161,7 +161,7 @@ def test_ppo_iterations_on_the_real_insertion_env_update_the_policy(tmp_path):
     from tests.rl.conftest import TRAIN_CFG
 
     plug = get_object("usb_plug")
-    task = {"name": "insertion", "num_actions": 6,
+    task = {"name": "insertion",
             "session": {"_target_": "grt.tasks.insertion.InsertionSession", "socket_object": "usb_plug",
                         "cloud_points": 0}}
     env = TaskVecEnv(task, [Shape.of(plug, make_collision("coacd", None, None, None, 64).parts(plug))],
