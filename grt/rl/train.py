@@ -1,11 +1,12 @@
 """PPO training with rsl-rl's ``OnPolicyRunner`` on a :class:`~grt.rl.vec_env.TaskVecEnv`, resumable.
 
-:func:`train` (one :class:`TrainSpec`) runs the runner one iteration at a time so that it can (1) show a progress bar,
-(2) write ``metrics.csv`` (one row per iteration: episode success rate, return, losses, seconds),
-(3) save a checkpoint with the GRT config inside every ``save_interval`` iterations (``last.pt``)
-and keep the best by training success rate (``best.pt``), (4) resume a killed run from ``last.pt``,
-and (5) stop early once a target success rate has held for ``patience`` iterations. The shipped policy
-file (:func:`export_policy`) drops the optimizer state so it stays small.
+:func:`train` (one :class:`TrainSpec`) runs the runner one iteration at a time so that it can (1) show a
+progress bar, (2) write ``metrics.csv`` (one row per iteration: episode success rate, return, losses,
+seconds), (3) save a checkpoint with the GRT config inside every ``save_interval`` iterations
+(``last.pt``) and keep the best by training success rate (``best.pt``), (4) resume a killed run from
+``last.pt``, and (5) stop early once a target success rate has held for ``patience`` iterations, or on
+validation episodes (:class:`ValidationSpec`). The shipped policy file (:func:`export_policy`) drops the
+optimizer state so it stays small.
 """
 
 from __future__ import annotations
