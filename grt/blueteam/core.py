@@ -22,7 +22,13 @@ import trimesh
 from omegaconf import DictConfig, OmegaConf
 
 from grt.errors import UserError
+from grt.evaluators.collision import make_collision
+from grt.geometry.deform import ShapeDeformer, deformer_options
+from grt.geometry.mesh import load_mesh
+from grt.geometry.prepare import MeshSettings
+from grt.outputs import crash_records
 from grt.scores import ScoreSpec
+from grt.selectors.base import HandleSet
 
 log = logging.getLogger(__name__)
 
@@ -63,12 +69,6 @@ def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tu
     """``(nominal, deformer, collision)`` of a red-team run, prepared as the run did: its nominal mesh,
     the deformer over its handles (a journaled theta gives the candidate's mesh bit for bit) and its
     collision-part maker (CoACD cache under ``cache_dir``)."""
-    from grt.evaluators.collision import make_collision
-    from grt.geometry.deform import ShapeDeformer, deformer_options
-    from grt.geometry.mesh import load_mesh
-    from grt.geometry.prepare import MeshSettings
-    from grt.selectors.base import HandleSet
-
     nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0),
                         settings=MeshSettings.from_config(run_cfg.get("mesh")))
     handles = HandleSet.from_json((Path(run_dir) / "handles.json").read_text())
@@ -125,8 +125,6 @@ def select_crashshapes(records: list[dict], mode, top_k: int, failing_below: flo
 
 def failing_records(records: list[dict], failing_below: float, s0: float) -> list[dict]:
     """The run's explored candidates scoring below ``failing_below`` x S0, lowest first (maybe none)."""
-    from grt.outputs import crash_records
-
     return [r for r in crash_records(records, len(records)) if r["score"] < failing_below * s0]
 
 
@@ -292,10 +290,6 @@ def plot_validation(rows: list[dict], dest: str | Path, score_label: str = "succ
 
 def name_of(rec: dict) -> str:
     return f"it{rec['iteration']}_c{rec['candidate']}"
-
-
-def summarize_scores(results) -> dict[str, float]:
-    return {name: float(res.score) for name, res in results.items()}
 
 
 def write_table(out_dir: Path, rows: list[dict], score: ScoreSpec | str) -> None:

@@ -15,9 +15,7 @@ import numpy as np
 import trimesh
 
 from grt.metrics import score_interval
-from grt.tasks.base import TrialOutcome
-
-SIM_ERROR = "sim_error"
+from grt.tasks.base import SIM_ERROR, TrialOutcome
 
 
 @dataclass

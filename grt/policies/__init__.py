@@ -1,13 +1,14 @@
 """GRT policies: black boxes behind small interfaces (:mod:`grt.policies.base`), picked by ``conf/policy``."""
 
 from grt.policies.base import (
-    ClosedLoopPolicy,
+    BatchedPolicy,
     Grasp,
     GraspObservation,
     GraspPolicy,
     GraspPredictor,
+    GraspStepPolicy,
     PointCloudGraspPolicy,
 )
 
-__all__ = ["ClosedLoopPolicy", "Grasp", "GraspObservation", "GraspPolicy", "GraspPredictor",
+__all__ = ["BatchedPolicy", "Grasp", "GraspObservation", "GraspPolicy", "GraspPredictor", "GraspStepPolicy",
            "PointCloudGraspPolicy"]

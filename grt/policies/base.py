@@ -13,11 +13,15 @@ Two kinds of policy plug into the grasp task (:class:`grt.tasks.grasp.GraspSessi
          _target_: my_package.MyPredictor   # predict(points (P,3), normals (P,3), rng) -> list[Grasp]
        max_retries: 10
 
-2. **Closed-loop policies**: :class:`ClosedLoopPolicy` gets an observation dict every control step
-   and returns a ``pd_joint_pos`` action; the task then lifts and shakes to judge the grasp::
+2. **Step-by-step grasp policies**: :class:`GraspStepPolicy` gets an observation dict every control
+   step and returns a ``pd_joint_pos`` action until it is done; the task then lifts and shakes to judge
+   the grasp::
 
        # conf/policy/my_policy.yaml
-       _target_: my_package.MyPolicy          # a ClosedLoopPolicy subclass
+       _target_: my_package.MyPolicy          # a GraspStepPolicy subclass
+
+The episode tasks (insertion, drawer: :class:`grt.tasks.base.EpisodeSession`) run a
+:class:`BatchedPolicy` instead: observation groups in, actions out, batched, every control step.
 
 Frames and units: world frame, meters, z up, table top at ``table_z``. A grasp pose is the
 tool-center-point (TCP, between the fingertips) pose: its z axis is the approach direction (from
@@ -69,8 +73,8 @@ class GraspObservation:
     context: np.ndarray | None = None
 
 
-class Policy(ABC):
-    """A black-box closed-loop policy behind one small batched interface.
+class BatchedPolicy(ABC):
+    """A black-box closed-loop policy of the episode tasks, behind one small batched interface.
 
     The task owns the observation adapter: it hands the policy a dict of named observation groups,
     each batched along the first axis (``(N, ...)``), and applies the returned actions ``(N, A)`` in
@@ -147,8 +151,9 @@ class PointCloudGraspPolicy(GraspPolicy):
         return []
 
 
-class ClosedLoopPolicy(ABC):
-    """A policy that acts every control step (the task judges the grasp by lifting and shaking).
+class GraspStepPolicy(ABC):
+    """A grasp policy that acts every control step, one observation at a time, until it is done (the
+    grasp task then judges the grasp by lifting and shaking).
 
     ``obs`` holds ``qpos`` (9,) joint positions (rad, fingers in m), ``tcp_pose`` (4, 4),
     ``points`` / ``viewpoints`` (P, 3) of the object cloud (captured once per trial) and ``step``.

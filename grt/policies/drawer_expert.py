@@ -1,6 +1,7 @@
 """An analytic drawer-opening policy: reach, pinch and pull with Jacobian joint deltas (a baseline).
 
-It reads only the task's 23-D ``state`` (:mod:`grt.tasks.drawer_env`): joint positions, the vector from
+It reads only the task's 23-D ``state`` (:mod:`grt.tasks.drawer_env`; its action and grasp conventions
+in :mod:`grt.policies.drawer_action`): joint positions, the vector from
 the TCP to the *nominal* handle's grasp point and the drawer's opening. Forward kinematics and the
 Jacobian come from the Panda's own URDF (SAPIEN's Pinocchio model, robot base at the world origin as in
 ``GRT-Drawer-v1``). Stateless, so it can teach a learned policy (behaviour cloning warm start):
@@ -16,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from grt.policies.base import Policy
+from grt.policies.base import BatchedPolicy
+from grt.policies.drawer_action import APPROACH, ARM_DELTA, FINGER_DELTA, GRASP_ROT
 
 ARM_JOINTS = [f"panda_joint{i}" for i in range(1, 8)] + ["panda_finger_joint1", "panda_finger_joint2"]
 
@@ -31,7 +33,7 @@ def _rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
     return angle * axis
 
 
-class DrawerExpertPolicy(Policy):
+class DrawerExpertPolicy(BatchedPolicy):
     """Reach-pinch-pull with damped least-squares joint deltas.
 
     Args:
@@ -47,8 +49,6 @@ class DrawerExpertPolicy(Policy):
                  lag: float = 6.0, closed_width: float = 0.0135):
         from mani_skill.agents.robots import Panda
         from sapien.wrapper.pinocchio_model import PinocchioModel
-
-        from grt.tasks.drawer_env import APPROACH, ARM_DELTA, FINGER_DELTA, GRASP_ROT
 
         self.speed, self.pregrasp, self.full_opening = float(speed), float(pregrasp), float(full_opening)
         self.lag, self.closed_width = float(lag), float(closed_width)

@@ -21,7 +21,7 @@ from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
 from grt.errors import UserError
-from grt.policies.base import Policy
+from grt.policies.base import BatchedPolicy
 
 
 class CheckpointError(UserError):
@@ -62,7 +62,7 @@ def build_actor(grt_cfg: dict):
     return actor_class(obs, train["obs_groups"], "actor", int(grt_cfg["num_actions"]), **actor_cfg)
 
 
-class RslRlPolicy(Policy):
+class RslRlPolicy(BatchedPolicy):
     """An rsl-rl actor from a GRT checkpoint, acting deterministically (the distribution's mean).
 
     Args:

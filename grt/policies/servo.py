@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from grt.policies.base import Policy
+from grt.policies.base import BatchedPolicy
 
 
 def _quat_conj(q: np.ndarray) -> np.ndarray:
@@ -28,7 +28,7 @@ def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
                      w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
 
 
-class ServoInsertionPolicy(Policy):
+class ServoInsertionPolicy(BatchedPolicy):
     """Proportional servo on the target pose.
 
     Args:

@@ -1,11 +1,12 @@
 """PPO training with rsl-rl's ``OnPolicyRunner`` on a :class:`~grt.rl.vec_env.TaskVecEnv`, resumable.
 
-:func:`train` runs the runner one iteration at a time so that it can (1) show a progress bar,
-(2) write ``metrics.csv`` (one row per iteration: episode success rate, return, losses, seconds),
-(3) save a checkpoint with the GRT config inside every ``save_interval`` iterations (``last.pt``)
-and keep the best by training success rate (``best.pt``), (4) resume a killed run from ``last.pt``,
-and (5) stop early once a target success rate has held for ``patience`` iterations. The shipped policy
-file (:func:`export_policy`) drops the optimizer state so it stays small.
+:func:`train` (one :class:`TrainSpec`) runs the runner one iteration at a time so that it can (1) show a
+progress bar, (2) write ``metrics.csv`` (one row per iteration: episode success rate, return, losses,
+seconds), (3) save a checkpoint with the GRT config inside every ``save_interval`` iterations
+(``last.pt``) and keep the best by training success rate (``best.pt``), (4) resume a killed run from
+``last.pt``, and (5) stop early once a target success rate has held for ``patience`` iterations, or on
+validation episodes (:class:`ValidationSpec`). The shipped policy file (:func:`export_policy`) drops the
+optimizer state so it stays small.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ import json
 import logging
 import time
 from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +26,7 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from tqdm.auto import tqdm
 
+from grt.fileio import atomic_path
 from grt.rl.vec_env import TaskVecEnv
 
 log = logging.getLogger(__name__)
@@ -44,18 +48,35 @@ def _runner_cfg(train_cfg: dict) -> dict:
     return cfg
 
 
-def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str, task_cfg: dict,
-          iterations: int, init_checkpoint: str | None = None, save_interval: int = 10,
-          target_success: float | None = None, patience: int = 20, extra: dict | None = None,
-          on_iteration=None, expert=None, bc: dict | None = None, validate=None, val_interval: int = 10,
-          val_patience: int = 3, val_perfect: float | None = 1.0, val_tie: float | None = None,
-          anchor=None) -> dict:
-    """Train (or resume) a PPO policy; returns ``{"iterations", "steps", "best_success", "wall_s", ...}``.
+@dataclass
+class ValidationSpec:
+    """Early stopping on held-out validation episodes (the paper's fine-tuning).
 
-    Args:
-        env: the vectorized task env.
+    Attributes:
+        score: ``checkpoint path -> score`` on the validation episodes, called every ``interval``
+            iterations (and before the first): the best is kept as ``val_best.pt``.
+        interval: PPO iterations between validations.
+        patience: validations without improvement before training stops.
+        perfect: a score that stops training at once (``None``: a continuous score has no perfect
+            value, e.g. a drawer opening).
+        tie: a later checkpoint within this much of the best replaces ``val_best.pt`` (the validation
+            cannot tell them apart: the more trained one is kept), though it does not count as a gain.
+    """
+
+    score: Callable[[Path], float]
+    interval: int = 10
+    patience: int = 3
+    perfect: float | None = 1.0
+    tie: float | None = None
+
+
+@dataclass
+class TrainSpec:
+    """One PPO training (or fine-tuning) run: what :func:`train` takes.
+
+    Attributes:
         train_cfg: rsl-rl runner config (``num_steps_per_env``, ``obs_groups``, ``actor``, ``critic``,
-            ``algorithm``).
+            ``algorithm``; optional ``seed``, ``freeze_normalization``).
         out_dir: run folder (checkpoints, ``metrics.csv``); an existing ``last.pt`` there is resumed.
         task_name, task_cfg: stored in every checkpoint.
         iterations: PPO iterations in total (a resumed run continues up to this number).
@@ -63,23 +84,59 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
         save_interval: iterations between ``last.pt`` saves.
         target_success: stop early when the success rate over the last ``patience`` iterations'
             episodes reaches it (``None``: never).
-        extra: more entries for the ``grt`` config.
-        on_iteration: called with each metrics row (e.g. a W&B logger).
+        extra: more entries for the ``grt`` config stored in checkpoints.
         expert: a policy to warm-start from by :func:`behavior_clone` (fresh runs only); ``bc`` its
             keyword arguments (``steps``, ``epochs``, ``noise``).
-        validate: ``checkpoint path -> score`` on held-out validation episodes, called every
-            ``val_interval`` iterations (and before the first): the best is kept as ``val_best.pt``
-            and training stops after ``val_patience`` validations without improvement, or at a
-            perfect score ``val_perfect`` (early stopping, as the paper's fine-tuning; ``None``: a
-            continuous score has no perfect value, e.g. a drawer opening). ``val_tie``: a later
-            checkpoint within this much of the best replaces ``val_best.pt`` (the validation cannot tell
-            them apart: the more trained one is kept), though it does not count as a gain.
+        validation: early stopping on validation episodes (``None``: off).
         anchor: a :class:`grt.rl.anchor.NominalAnchor`, stepped after each PPO iteration (its error is
             the ``anchor_mse`` column).
+        on_iteration: called with each metrics row (e.g. a W&B logger).
     """
-    out = Path(out_dir)
+
+    train_cfg: dict
+    out_dir: str | Path
+    task_name: str
+    task_cfg: dict
+    iterations: int
+    init_checkpoint: str | None = None
+    save_interval: int = 10
+    target_success: float | None = None
+    patience: int = 20
+    extra: dict | None = None
+    expert: object | None = None
+    bc: dict | None = None
+    validation: ValidationSpec | None = None
+    anchor: object | None = None
+    on_iteration: Callable[[dict], None] | None = None
+
+    @classmethod
+    def from_config(cls, train: dict, out_dir: str | Path, task_name: str, task_cfg: dict, **more) -> TrainSpec:
+        """The spec of a ``conf/train`` config (``iterations``, ``save_interval``, ``target_success``,
+        ``patience``, the runner's keys); ``more`` sets the other fields."""
+        return cls(train_cfg=train, out_dir=out_dir, task_name=task_name, task_cfg=task_cfg,
+                   iterations=int(train["iterations"]), save_interval=int(train["save_interval"]),
+                   target_success=train["target_success"], patience=int(train["patience"]), **more)
+
+
+def train(env: TaskVecEnv, spec: TrainSpec) -> dict:
+    """Train (or resume) a PPO policy on ``env``; returns ``{"iterations", "steps", "best_success",
+    "wall_s", "stopped_early", "out_dir", "validation"}``."""
+    out = Path(spec.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    torch.manual_seed(int(train_cfg.get("seed", 0)))
+    torch.manual_seed(int(spec.train_cfg.get("seed", 0)))
+    runner = _make_runner(env, spec.train_cfg)
+    cfg = grt_config(spec.task_name, env, spec.train_cfg, spec.task_cfg, spec.extra)
+    start_it, best = _start(runner, env, spec, cfg, out)
+    if spec.train_cfg.get("freeze_normalization"):
+        # The actor was fitted (warm start, or the checkpoint fine-tuned) under these statistics: PPO's
+        # rollouts would move them and with them every input of the fixed weights.
+        runner.alg.get_policy().update_normalization = lambda obs: None
+        runner.alg.critic.update_normalization = lambda obs: None
+    return _Loop(runner, env, spec, cfg, out, start_it, best).run()
+
+
+def _make_runner(env: TaskVecEnv, train_cfg: dict) -> OnPolicyRunner:
+    """rsl-rl's runner on ``env``, its PPO update wrapped so that each iteration's losses are kept."""
     runner = OnPolicyRunner(env, _runner_cfg(train_cfg), log_dir=None, device="cpu")
     update = runner.alg.update
 
@@ -88,76 +145,97 @@ def train(env: TaskVecEnv, train_cfg: dict, out_dir: str | Path, task_name: str,
         return runner._last_losses
 
     runner.alg.update = update_and_keep_losses
-    cfg = grt_config(task_name, env, train_cfg, task_cfg, extra)
-    start_it, best = 0, -1.0
+    return runner
+
+
+def _start(runner: OnPolicyRunner, env: TaskVecEnv, spec: TrainSpec, cfg: dict, out: Path) -> tuple[int, float]:
+    """Load the starting weights: ``last.pt`` (resume), else the initial checkpoint, else a behaviour-
+    cloning warm start (written to ``cfg`` and ``warm_start.json``); returns ``(first iteration, best)``."""
     if (out / "last.pt").exists():
         runner.load(str(out / "last.pt"))
         state = torch.load(out / "last.pt", map_location="cpu", weights_only=False)
-        start_it, best = int(state["iter"]) + 1, float(state["grt"].get("best_success", -1.0))
-        log.info("resuming %s at iteration %d", out, start_it)
-    elif init_checkpoint:
-        runner.load(str(init_checkpoint), load_cfg={"actor": True, "critic": True}, strict=True)
-    elif expert is not None:
-        warm = behavior_clone(runner, env, expert, seed=int(train_cfg.get("seed", 0)), **(bc or {}))
+        log.info("resuming %s at iteration %d", out, int(state["iter"]) + 1)
+        return int(state["iter"]) + 1, float(state["grt"].get("best_success", -1.0))
+    if spec.init_checkpoint:
+        runner.load(str(spec.init_checkpoint), load_cfg={"actor": True, "critic": True}, strict=True)
+    elif spec.expert is not None:
+        warm = behavior_clone(runner, env, spec.expert, seed=int(spec.train_cfg.get("seed", 0)), **(spec.bc or {}))
         log.info("behaviour-cloning warm start: %s", warm)
         cfg["warm_start"] = warm
         write_json(out / "warm_start.json", warm)
-    if train_cfg.get("freeze_normalization"):
-        # The actor was fitted (warm start, or the checkpoint fine-tuned) under these statistics: PPO's
-        # rollouts would move them and with them every input of the fixed weights.
-        runner.alg.get_policy().update_normalization = lambda obs: None
-        runner.alg.critic.update_normalization = lambda obs: None
-    metrics_path = out / "metrics.csv"
-    rows = _read_rows(metrics_path, start_it)
-    recent: deque = deque(maxlen=max(1, patience))
-    steps_per_it = env.num_envs * int(train_cfg["num_steps_per_env"])
-    started = time.perf_counter()
-    bar = tqdm(total=iterations, initial=start_it, desc="ppo", unit="it", dynamic_ncols=True)
-    stopped_early = False
-    val = _Validation(validate, out, val_patience, val_perfect, val_tie)
-    if validate is not None and start_it == 0:
-        _save(runner, out / "val_current.pt", -1, {**cfg, "best_success": best})
-        val.check(-1, out / "val_current.pt")
-    try:
-        for it in range(start_it, iterations):
-            before = len(env.episodes)
-            t0 = time.perf_counter()
-            runner.current_learning_iteration = it
-            runner.learn(1)
-            drift = anchor.step(runner.alg.get_policy()) if anchor is not None else float("nan")
-            ended = env.episodes[before:]
-            row = _row(it, steps_per_it, ended, runner, time.perf_counter() - t0)
-            row["anchor_mse"] = drift
-            rows.append(row)
-            _write_rows(metrics_path, rows)
-            recent.append(ended)
-            window = [e["success"] for eps in recent for e in eps]
-            rate = float(np.mean(window)) if window else 0.0
-            bar.update(1)
-            bar.set_postfix(success=f"{rate:.2f}", ret=f"{row['mean_return']:.1f}")
-            if on_iteration:
-                on_iteration(row)
-            if window and rate > best and len(recent) == recent.maxlen:
-                best = rate
-                _save(runner, out / "best.pt", it, {**cfg, "best_success": best})
-            if (it + 1) % save_interval == 0 or it + 1 == iterations:
-                _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
-            if validate is not None and (it + 1) % val_interval == 0:
-                _save(runner, out / "val_current.pt", it, {**cfg, "best_success": best})
-                if val.check(it, out / "val_current.pt"):
-                    _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
+    return 0, -1.0
+
+
+class _Loop:
+    """The PPO iterations of :func:`train`: one ``runner.learn(1)`` each, then the bookkeeping (metrics
+    row, progress bar, ``best.pt`` / ``last.pt``, validation, early stop)."""
+
+    def __init__(self, runner: OnPolicyRunner, env: TaskVecEnv, spec: TrainSpec, cfg: dict, out: Path,
+                 start_it: int, best: float):
+        self.runner, self.env, self.spec, self.cfg, self.out = runner, env, spec, cfg, out
+        self.start_it, self.best = start_it, best
+        self.rows = _read_rows(out / "metrics.csv", start_it)
+        self.recent: deque = deque(maxlen=max(1, spec.patience))
+        self.steps_per_it = env.num_envs * int(spec.train_cfg["num_steps_per_env"])
+        v = spec.validation
+        self.val = _Validation(v.score if v else None, out, v.patience if v else 3, v.perfect if v else 1.0,
+                               v.tie if v else None)
+
+    def save(self, name: str, it: int) -> None:
+        _save(self.runner, self.out / name, it, {**self.cfg, "best_success": self.best})
+
+    def run(self) -> dict:
+        spec, started, stopped_early = self.spec, time.perf_counter(), False
+        bar = tqdm(total=spec.iterations, initial=self.start_it, desc="ppo", unit="it", dynamic_ncols=True)
+        if spec.validation is not None and self.start_it == 0:  # the policy before any update
+            self.save("val_current.pt", -1)
+            self.val.check(-1, self.out / "val_current.pt")
+        try:
+            for it in range(self.start_it, spec.iterations):
+                if self.step(it, bar):
                     stopped_early = True
                     break
-            if target_success is not None and len(recent) == recent.maxlen and rate >= target_success:
-                _save(runner, out / "last.pt", it, {**cfg, "best_success": best})
-                stopped_early = True
-                break
-    finally:
-        bar.close()
-    final_it = rows[-1]["iteration"] if rows else start_it
-    return {"iterations": int(final_it) + 1, "steps": (int(final_it) + 1) * steps_per_it, "best_success": best,
-            "wall_s": time.perf_counter() - started, "stopped_early": stopped_early, "out_dir": str(out),
-            "validation": val.history}
+        finally:
+            bar.close()
+        final_it = self.rows[-1]["iteration"] if self.rows else self.start_it
+        return {"iterations": int(final_it) + 1, "steps": (int(final_it) + 1) * self.steps_per_it,
+                "best_success": self.best, "wall_s": time.perf_counter() - started, "stopped_early": stopped_early,
+                "out_dir": str(self.out), "validation": self.val.history}
+
+    def step(self, it: int, bar) -> bool:
+        """One PPO iteration and its bookkeeping; True when training should stop early."""
+        spec, runner, env = self.spec, self.runner, self.env
+        before, t0 = len(env.episodes), time.perf_counter()
+        runner.current_learning_iteration = it
+        runner.learn(1)
+        drift = spec.anchor.step(runner.alg.get_policy()) if spec.anchor is not None else float("nan")
+        ended = env.episodes[before:]
+        row = _row(it, self.steps_per_it, ended, runner, time.perf_counter() - t0)
+        row["anchor_mse"] = drift
+        self.rows.append(row)
+        _write_rows(self.out / "metrics.csv", self.rows)
+        self.recent.append(ended)
+        window = [e["success"] for eps in self.recent for e in eps]
+        rate = float(np.mean(window)) if window else 0.0
+        bar.update(1)
+        bar.set_postfix(success=f"{rate:.2f}", ret=f"{row['mean_return']:.1f}")
+        if spec.on_iteration:
+            spec.on_iteration(row)
+        full = len(self.recent) == self.recent.maxlen
+        if window and rate > self.best and full:
+            self.best = rate
+            self.save("best.pt", it)
+        if (it + 1) % spec.save_interval == 0 or it + 1 == spec.iterations:
+            self.save("last.pt", it)
+        if spec.validation is not None and (it + 1) % spec.validation.interval == 0:
+            self.save("val_current.pt", it)
+            if self.val.check(it, self.out / "val_current.pt"):
+                self.save("last.pt", it)
+                return True
+        if spec.target_success is not None and full and rate >= spec.target_success:
+            self.save("last.pt", it)
+            return True
+        return False
 
 
 class _Validation:
@@ -248,18 +326,16 @@ def export_policy(checkpoint: str | Path, dest: str | Path, metrics: dict | None
         small["grt"] = {**small["grt"], "metrics": metrics}
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_suffix(".tmp")
-    torch.save(small, tmp)
-    tmp.replace(dest)
+    with atomic_path(dest) as tmp:
+        torch.save(small, tmp)
     return dest
 
 
 def _save(runner: OnPolicyRunner, path: Path, it: int, cfg: dict) -> None:
     state = runner.alg.save()
     state.update(iter=it, infos=None, grt=cfg)
-    tmp = path.with_suffix(".tmp")
-    torch.save(state, tmp)
-    tmp.replace(path)  # atomic: a kill never leaves a half-written checkpoint
+    with atomic_path(path) as tmp:  # a kill never leaves a half-written checkpoint
+        torch.save(state, tmp)
 
 
 def _row(it: int, steps_per_it: int, ended: list[dict], runner: OnPolicyRunner, seconds: float) -> dict:
@@ -285,12 +361,10 @@ def _read_rows(path: Path, upto: int) -> list[dict]:
 
 
 def _write_rows(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_suffix(".tmp")
-    with tmp.open("w", newline="") as f:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore", restval="nan")  # rows of an older layout resume too
         w.writeheader()
         w.writerows(rows)
-    tmp.replace(path)
 
 
 def plot_curve(metrics_csv: str | Path, dest: str | Path, title: str = "") -> None:

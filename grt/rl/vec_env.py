@@ -24,6 +24,9 @@ import trimesh
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
+from grt.evaluators.pool import build_session
+from grt.tasks import session_class
+
 
 @dataclass
 class Shape:
@@ -47,8 +50,6 @@ class _EnvGroup:
 
     def __init__(self, task: dict, shapes: list[Shape], weights: np.ndarray, env_ids: list[int], seed: int,
                  max_steps: int | None):
-        from grt.evaluators.pool import build_session
-
         self.shapes, self.weights = shapes, weights
         self.sessions, self.current = [], []
         for _ in env_ids:
@@ -162,13 +163,8 @@ class TaskVecEnv(VecEnv):
         self._obs = self._stack(first)
         self.max_episode_length = int(max_steps or 256)
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=device)
-        self.num_actions = int(task.get("num_actions") or 0) or self._probe_actions(task)
+        self.num_actions = int(session_class(task).num_actions)  # the session class's, its one place
         self.episodes: list[dict] = []  # every ended episode (success, length, shape, return)
-
-    def _probe_actions(self, task: dict) -> int:
-        from grt.tasks import get_task
-
-        return int(get_task(task["name"]).num_actions)
 
     def _call(self, cmd: str, actions: np.ndarray | None = None):
         if self._local is not None:

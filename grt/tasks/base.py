@@ -5,13 +5,13 @@ object (``load_object``: a reconfigure, tens of milliseconds) and then runs seed
 (``run_trial``), each ending in a :class:`TrialOutcome` with a named failure mode — a trial never
 fails or succeeds silently.
 
-Failure modes shared by tasks (a task may add its own):
+Each session class declares its own failure modes in
+:attr:`TaskSession.failure_modes` (``GraspSession``: ``no_grasp_found``, ``unreachable``, ``missed``,
+``dropped_lift``, ``dropped_shake``; ``InsertionSession``: ``jammed``, ``misaligned``, ``dropped``,
+``timeout``; ``DrawerSession``: ``missed_handle``, ``slipped``, ``partial_open``, ``timeout``); every task
+has the :data:`COMMON_MODES`:
 
 - ``success``: the task's success condition holds at the end of the trial.
-- ``no_grasp_found``: the policy proposed nothing it would execute (after its retries).
-- ``unreachable``: inverse kinematics found no joint configuration for any proposal.
-- ``missed``: the gripper closed on nothing.
-- ``dropped_lift`` / ``dropped_shake``: the object was held, then lost while lifting / shaking.
 - ``sim_error``: the simulation itself failed (NaN state, object flying away, a physics exception).
 """
 
@@ -26,24 +26,9 @@ import trimesh
 
 from grt.errors import UserError
 
-FAILURE_MODES = (
-    "success",
-    "no_grasp_found",
-    "unreachable",
-    "missed",
-    "dropped_lift",
-    "dropped_shake",
-    "sim_error",
-    # closed-loop tasks (insertion, drawer)
-    "jammed",
-    "misaligned",
-    "dropped",
-    "timeout",
-    # drawer
-    "missed_handle",
-    "slipped",
-    "partial_open",
-)
+SUCCESS, SIM_ERROR = "success", "sim_error"
+#: The trial modes of every task: its success condition held, or the simulation itself failed.
+COMMON_MODES = (SUCCESS, SIM_ERROR)
 
 
 class TaskInputError(UserError):
@@ -58,7 +43,7 @@ class TrialOutcome:
         seed: the episode seed (object pose randomization and the policy's sampling).
         score: the task metric of this trial (1.0 / 0.0 for binary tasks).
         success: whether the task succeeded.
-        mode: one of :data:`FAILURE_MODES` (or a task-specific mode), never empty.
+        mode: ``success`` or a failure mode, one of the task's :attr:`TaskSession.failure_modes`.
         info: JSON-serializable details (timings in seconds, grasp width in meters, ...).
     """
 
@@ -82,6 +67,8 @@ class TaskSession(ABC):
 
     #: Name of the task metric; ``success`` means binary (score = float(success)).
     score_name: str = "success"
+    #: Every mode a trial of this task can end in: :data:`COMMON_MODES` and the task's own failure modes.
+    failure_modes: tuple[str, ...] = COMMON_MODES
 
     #: observation groups this task produces (name -> shape without the batch dimension).
     obs_spec: dict[str, tuple[int, ...]] = {}
@@ -132,7 +119,7 @@ class EpisodeSession(TaskSession):
     :meth:`observe`, :meth:`judge` and :meth:`load_object`.
 
     Args:
-        policy: a :class:`grt.policies.base.Policy` (``None`` in a learning worker).
+        policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` in a learning worker).
         max_steps: control steps per episode (the episode ends earlier at success).
         rebuild_each_trial: rebuild the scene before every evaluation trial (~30 ms), so that an
             outcome depends only on (object, seed), whatever ran before in this process.
@@ -228,7 +215,7 @@ class EpisodeSession(TaskSession):
             mode = self.judge(success, info)
             score = self.score(success, info)
         except Exception as err:  # physics failures must not pass silently
-            mode, score, success = "sim_error", 0.0, False
+            mode, score, success = SIM_ERROR, 0.0, False
             info = {"error": f"{type(err).__name__}: {err}"}
         info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
         info.update(steps=self.steps, wall_s=time.perf_counter() - start)

@@ -24,8 +24,9 @@ import gymnasium as gym
 import numpy as np
 import trimesh
 
-from grt.tasks.base import EpisodeSession, TaskInputError
-from grt.tasks.drawer_env import GRASP_ROT, HANDLE_ROT, MAX_OPENING, STATE_DIM, CabinetSpec, DrawerEnv
+from grt.policies.drawer_action import GRASP_ROT
+from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError
+from grt.tasks.drawer_env import HANDLE_ROT, MAX_OPENING, STATE_DIM, CabinetSpec, DrawerEnv
 
 __all__ = ["DrawerEnv", "DrawerSession", "HandleFitError", "handle_grasp_point"]
 
@@ -93,7 +94,7 @@ class DrawerSession(EpisodeSession):
     """Drawer-opening episodes of one policy on one handle at a time.
 
     Args:
-        policy: a :class:`grt.policies.base.Policy` (``None`` for a learning worker).
+        policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` for a learning worker).
         handle_object: the nominal handle (built-in name or mesh path): its grasp point is observed.
         grasp_point: the nominal grasp point (m, handle frame); ``None``: the built-in handle's.
         max_steps: control steps per episode (paper: 500).
@@ -104,6 +105,7 @@ class DrawerSession(EpisodeSession):
 
     num_actions = 9
     task_name = "drawer"
+    failure_modes = (*COMMON_MODES, "missed_handle", "slipped", "partial_open", "timeout")
     score_name = "opening"
     obs_spec = {"state": (STATE_DIM,)}
 

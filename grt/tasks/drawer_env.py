@@ -40,29 +40,20 @@ from mani_skill.agents.controllers import PDJointPosControllerConfig
 from mani_skill.agents.controllers.pd_joint_pos import PDJointPosController
 from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots import Panda
-from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.building.ground import build_ground
 from mani_skill.utils.registration import register_env
-from mani_skill.utils.structs.types import SimConfig
 from sapien import physx
 
+from grt.policies.drawer_action import APPROACH, ARM_DELTA, FINGER_DELTA, GRASP_ROT
+from grt.tasks.env_base import TaskEnv
 from grt.tasks.scene import attach_convex_parts, render_mesh_shape
 
-ARM_DELTA = 0.1       # rad per control step and unit action (PD: 1 rad/s at |a| = 1)
-FINGER_DELTA = 0.015  # m per control step and unit action (a held "close" squeezes with 15 N)
 STATE_DIM = 23
 MAX_OPENING = 0.39    # m (paper)
 # The handle frame in the drawer frame: handle x -> world -y, handle y -> world z, handle z -> world -x.
 HANDLE_ROT = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-# TCP orientation for a grasp of a horizontal bar: approach (TCP z) towards the drawer (world +x),
-# pitched 20 deg down (keeps the Panda's wrist joint 6 clear of its limit), fingers (TCP y) closing in
-# the vertical plane across the bar.
-GRASP_PITCH = np.deg2rad(20.0)
-GRASP_ROT = np.array([[0.0, np.sin(GRASP_PITCH), np.cos(GRASP_PITCH)], [1.0, 0.0, 0.0],
-                      [0.0, np.cos(GRASP_PITCH), -np.sin(GRASP_PITCH)]])
-APPROACH = GRASP_ROT[:, 2]
 
 class _ClippedController(PDJointPosController):
     """Joint-delta targets (from the current joint positions) clipped to the joint limits."""
@@ -167,7 +158,7 @@ def cabinet_boxes(spec: CabinetSpec) -> tuple[list, list]:
 
 
 @register_env("GRT-Drawer-v1", max_episode_steps=500)
-class DrawerEnv(BaseEnv):
+class DrawerEnv(TaskEnv):
     """Panda + procedural cabinet + one in-memory handle on the drawer. See the module docstring.
 
     Args:
@@ -181,6 +172,7 @@ class DrawerEnv(BaseEnv):
 
     SUPPORTED_ROBOTS = ["panda_drawer"]
     agent: PandaDrawer
+    robot_base = (0.0, 0.0, 0.0)
 
     def __init__(self, *args, grasp_point=(0.0, 0.0, 0.032), cabinet: dict | None = None,
                  qpos_noise: float = 0.25, success_opening: float = 0.38, handle_friction: float = 1.0,
@@ -196,14 +188,6 @@ class DrawerEnv(BaseEnv):
 
     # ------------------------------------------------------------------ configuration
     @property
-    def _default_sim_config(self):
-        return SimConfig(sim_freq=self._sim_freq, control_freq=self._control_freq)
-
-    @property
-    def _default_sensor_configs(self) -> list[CameraConfig]:
-        return []
-
-    @property
     def _default_human_render_camera_configs(self) -> CameraConfig:
         c = self.cabinet
         pose = sapien_utils.look_at([c.front_x - 0.55, 0.55, c.drawer_z + 0.35], [c.front_x - 0.1, 0.0, c.drawer_z])
@@ -217,9 +201,6 @@ class DrawerEnv(BaseEnv):
         self.handle_parts = [np.asarray(p, np.float64).reshape(-1, 3) for p in parts]
 
     # ------------------------------------------------------------------ scene
-    def _load_agent(self, options: dict):
-        super()._load_agent(options, sapien.Pose(p=[0.0, 0.0, 0.0]))
-
     def _load_scene(self, options: dict):
         self.ground = build_ground(self.scene)
         self.cabinet_art, self.num_handle_shapes = build_cabinet(
@@ -260,9 +241,6 @@ class DrawerEnv(BaseEnv):
         local = pose[:3, :3] @ self.grasp_point + pose[:3, 3]
         return local + np.array([-self.opening(), 0.0, 0.0])
 
-    def tcp_pose(self) -> np.ndarray:
-        return self.agent.tcp.pose.to_transformation_matrix()[0].numpy().astype(np.float64)
-
     def finger_contacts(self) -> tuple[float, float]:
         """Contact force magnitudes (N) between each finger and the drawer link (handle and front)."""
         forces = [self.scene.get_pairwise_contact_forces(link, self.drawer_link)[0].norm().item()
@@ -297,12 +275,6 @@ class DrawerEnv(BaseEnv):
         act = torch.as_tensor(action, dtype=torch.float32).reshape(1, -1)
         return 0.1 * (reach - 2.0 * closed + 0.25 * info["holding"].float() + 10.0 * info["success"].float()
                       - 0.01 * (act ** 2).sum(-1))
-
-    def compute_normalized_dense_reward(self, obs, action, info):
-        return self.compute_dense_reward(obs, action, info)
-
-    def _get_obs_extra(self, info: dict) -> dict:
-        return {}
 
     def task_obs(self) -> dict[str, np.ndarray]:
         """The policy's observation (see the module docstring): ``state`` (23,)."""

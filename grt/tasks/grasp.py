@@ -28,8 +28,8 @@ import gymnasium as gym
 import numpy as np
 import trimesh
 
-from grt.policies.base import ClosedLoopPolicy, GraspObservation
-from grt.tasks.base import TaskSession, TrialOutcome
+from grt.policies.base import GraspObservation, GraspStepPolicy
+from grt.tasks.base import COMMON_MODES, TaskSession, TrialOutcome
 from grt.tasks.grasp_env import GraspEnv  # registers GRT-Grasp-v1 (env docstring: Description, ...)
 from grt.tasks.motion import PandaIK, offset_along_approach, rotate_about_z, translated
 
@@ -44,7 +44,7 @@ class GraspSession(TaskSession):
     """Grasp-lift-shake trials of one policy on one object at a time.
 
     Args:
-        policy: a ``GraspPolicy`` (``plan(obs, seed) -> list[Grasp]``) or a ``ClosedLoopPolicy``.
+        policy: a ``GraspPolicy`` (``plan(obs, seed) -> list[Grasp]``) or a ``GraspStepPolicy``.
         env_id: the registered ManiSkill env.
         num_cameras, camera_width, camera_height: the depth cameras (paper: 6 at 360 x 240).
         xy_range: object XY noise half-range (m); yaw_range: yaw noise half-range (rad).
@@ -59,6 +59,8 @@ class GraspSession(TaskSession):
             hold``.
         max_policy_steps: step budget of a closed-loop policy.
     """
+
+    failure_modes = (*COMMON_MODES, "no_grasp_found", "unreachable", "missed", "dropped_lift", "dropped_shake")
 
     def __init__(self, policy, env_id: str = "GRT-Grasp-v1", num_cameras: int = 6, camera_width: int = 360,
                  camera_height: int = 240, xy_range: float = 0.02, yaw_range: float = 0.79,
@@ -137,7 +139,7 @@ class GraspSession(TaskSession):
             t = time.perf_counter()
             obs = self._observe()
             info["capture_s"], info["num_points"] = time.perf_counter() - t, len(obs.points)
-            if isinstance(self.policy, ClosedLoopPolicy):
+            if isinstance(self.policy, GraspStepPolicy):
                 return self._closed_loop(seed, obs.points, obs.viewpoints, info)
             t = time.perf_counter()
             grasps = self.policy.plan(obs, seed)
@@ -182,7 +184,7 @@ class GraspSession(TaskSession):
         ``policy.batch_size`` trials. :meth:`run_trial` uses the stored grasps.
         """
         size = int(getattr(self.policy, "batch_size", 1) or 1)
-        if size <= 1 or not hasattr(self.policy, "plan_batch") or isinstance(self.policy, ClosedLoopPolicy):
+        if size <= 1 or not hasattr(self.policy, "plan_batch") or isinstance(self.policy, GraspStepPolicy):
             return
         seeds = [int(s) for s in seeds if int(s) not in self._planned]
         for start in range(0, len(seeds), size):

@@ -25,18 +25,16 @@ Swap it with :meth:`GraspEnv.set_object` followed by ``reset(options={"reconfigu
 from __future__ import annotations
 
 import numpy as np
-import sapien
 import torch
 import trimesh
 from mani_skill.agents.robots import Panda
-from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
-from mani_skill.utils.structs.types import SimConfig
 
+from grt.tasks.env_base import TaskEnv
 from grt.tasks.scene import build_object_actor, capture_segmented_cloud, hemisphere_camera_configs
 
 # Fixed start: hand pointing down, TCP at (-0.15, 0, 0.38) m, clear of objects up to ~0.3 m tall and of
@@ -53,7 +51,7 @@ def default_object() -> tuple[trimesh.Trimesh, list[np.ndarray]]:
 
 
 @register_env("GRT-Grasp-v1", max_episode_steps=200)
-class GraspEnv(BaseEnv):
+class GraspEnv(TaskEnv):
     """Panda + table + one in-memory object. See the module docstring.
 
     Args:
@@ -85,10 +83,6 @@ class GraspEnv(BaseEnv):
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
 
     @property
-    def _default_sim_config(self):
-        return SimConfig(sim_freq=self._sim_freq, control_freq=self._control_freq)
-
-    @property
     def _default_sensor_configs(self) -> list[CameraConfig]:
         width, height = self.camera_size
         return hemisphere_camera_configs(self.num_cameras, OBJECT_CENTER, width=width, height=height)
@@ -109,9 +103,6 @@ class GraspEnv(BaseEnv):
             raise ValueError("an object needs at least one convex collision part")
         self.object_mesh = mesh
         self.object_parts = [np.asarray(p, np.float64).reshape(-1, 3) for p in parts]
-
-    def _load_agent(self, options: dict):
-        super()._load_agent(options, sapien.Pose(p=[-0.615, 0, 0]))
 
     def _load_scene(self, options: dict):
         self.table_scene = TableSceneBuilder(self, robot_init_qpos_noise=0.0)
@@ -168,6 +159,3 @@ class GraspEnv(BaseEnv):
         if "success" not in info:
             return torch.zeros(self.num_envs, device=self.device)
         return info["success"].float()
-
-    def compute_normalized_dense_reward(self, obs, action, info):
-        return self.compute_dense_reward(obs, action, info)

@@ -23,7 +23,7 @@ import gymnasium as gym
 import numpy as np
 import trimesh
 
-from grt.tasks.base import EpisodeSession
+from grt.tasks.base import COMMON_MODES, EpisodeSession
 from grt.tasks.insertion_env import GRIP_DIM, STATE_DIM, InsertEnv  # registers GRT-Insert-v1
 from grt.tasks.socket import PlugFitError, build_socket, grip_half_width
 
@@ -62,7 +62,7 @@ class InsertionSession(EpisodeSession):
     """Insertion episodes of one policy on one plug at a time.
 
     Args:
-        policy: a :class:`grt.policies.base.Policy` (``None`` for a learning worker).
+        policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` for a learning worker).
         socket_object: the nominal plug (built-in name or mesh path) the socket is made for.
         head_length, grip_height: the plug's connector length and grip point (m); ``None``: the
             built-in plug's values.
@@ -75,6 +75,7 @@ class InsertionSession(EpisodeSession):
 
     num_actions = 6
     task_name = "insertion"
+    failure_modes = (*COMMON_MODES, "jammed", "misaligned", "dropped", "timeout")
 
     def __init__(self, policy=None, socket_object: str = "usb_plug", head_length: float | None = None,
                  grip_height: float | None = None, clearance: float = 0.0004, chamfer: float = 0.0015,

@@ -41,16 +41,15 @@ import trimesh
 from mani_skill.agents.controllers import PDEEPoseControllerConfig
 from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots import Panda
-from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
-from mani_skill.utils.structs.types import SimConfig
 from sapien import physx
 from scipy.spatial.transform import Rotation
 
+from grt.tasks.env_base import TaskEnv
 from grt.tasks.motion import PandaIK
 from grt.tasks.scene import InMemoryActorBuilder, build_object_actor
 from grt.tasks.socket import SocketGeometry, build_socket, grip_half_width
@@ -118,7 +117,7 @@ def farthest_points(points: np.ndarray, k: int) -> np.ndarray:
 
 
 @register_env("GRT-Insert-v1", max_episode_steps=256)
-class InsertEnv(BaseEnv):
+class InsertEnv(TaskEnv):
     """Panda + table + socket + one in-memory plug. See the module docstring.
 
     Args:
@@ -135,6 +134,7 @@ class InsertEnv(BaseEnv):
 
     SUPPORTED_ROBOTS = ["panda_insert"]
     agent: PandaInsert
+    max_dense_reward = 2.25  # see compute_dense_reward
 
     def __init__(self, *args, head_length: float = 0.012, grip_height: float = 0.030,
                  socket_xy_range: float = 0.1, socket_z_range: tuple[float, float] = (0.0, 0.05),
@@ -157,14 +157,6 @@ class InsertEnv(BaseEnv):
         super().__init__(*args, robot_uids="panda_insert", **kwargs)
 
     # ------------------------------------------------------------------ configuration
-    @property
-    def _default_sim_config(self):
-        return SimConfig(sim_freq=self._sim_freq, control_freq=self._control_freq)
-
-    @property
-    def _default_sensor_configs(self) -> list[CameraConfig]:
-        return []
-
     @property
     def _default_human_render_camera_configs(self) -> CameraConfig:
         pose = sapien_utils.look_at([0.25, 0.3, 0.3], [0.0, 0.0, 0.08])
@@ -190,9 +182,6 @@ class InsertEnv(BaseEnv):
         return farthest_points(np.asarray(samples), k)
 
     # ------------------------------------------------------------------ scene
-    def _load_agent(self, options: dict):
-        super()._load_agent(options, sapien.Pose(p=[-0.615, 0, 0]))
-
     def _load_scene(self, options: dict):
         self.table_scene = TableSceneBuilder(self, robot_init_qpos_noise=0.0)
         self.table_scene.build()
@@ -271,9 +260,6 @@ class InsertEnv(BaseEnv):
         """``(4, 4)`` world pose of the plug frame (tip at its origin)."""
         return self.plug.pose.to_transformation_matrix()[0].numpy().astype(np.float64)
 
-    def tcp_pose(self) -> np.ndarray:
-        return self.agent.tcp.pose.to_transformation_matrix()[0].numpy().astype(np.float64)
-
     def keypoints(self) -> tuple[np.ndarray, np.ndarray]:
         """Plug keypoints and their targets ``(2, 3)`` each (m): the head's tip and its top, on its axis."""
         axis = np.r_[self.socket.center, 0.0]
@@ -309,12 +295,6 @@ class InsertEnv(BaseEnv):
         err = info["keypoint_error"].float()
         engaged = (info["tip_to_floor"] < self.head_length) & (info["tip_off_axis"] < 0.002)
         return -torch.tanh(err / 0.02) + 0.25 * engaged.float() + 2.0 * info["success"].float()
-
-    def compute_normalized_dense_reward(self, obs, action, info):
-        return self.compute_dense_reward(obs, action, info) / 2.25
-
-    def _get_obs_extra(self, info: dict) -> dict:
-        return {}
 
     def grip_correction(self) -> np.ndarray:
         """``grip`` (6,): the in-hand correction ``C`` of the module docstring (m, rad), float32."""

@@ -16,7 +16,7 @@ def reach_task():
     """The reach task's config (``task["session"]`` builds :class:`_reach_task.ReachSession`)."""
     with pytest.MonkeyPatch.context() as mp:
         mp.syspath_prepend(str(HERE))  # spawned workers inherit sys.path
-        yield {"name": "reach", "num_actions": 1, "session": {"_target_": "_reach_task.ReachSession"}}
+        yield {"name": "reach", "session": {"_target_": "_reach_task.ReachSession"}}
 
 
 @pytest.fixture

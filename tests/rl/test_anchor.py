@@ -6,13 +6,13 @@ import pytest
 
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.rl.anchor import NominalAnchor
-from grt.rl.train import export_policy, train
+from grt.rl.train import TrainSpec, export_policy, train
 from grt.rl.vec_env import TaskVecEnv
 
 
 def test_an_anchored_fine_tune_stays_closer_to_the_policy_it_started_from(reach_task, box_shape, train_cfg, tmp_path):
     env = TaskVecEnv(reach_task, [box_shape], num_envs=4, workers=0, seed=0)
-    train(env, train_cfg, tmp_path / "start", "reach", reach_task, iterations=8)
+    train(env, TrainSpec(train_cfg, tmp_path / "start", "reach", reach_task, iterations=8))
     env.close()
     start = export_policy(tmp_path / "start" / "last.pt", tmp_path / "start.pt")
     reference = RslRlPolicy(str(start)).actor
@@ -25,7 +25,7 @@ def test_an_anchored_fine_tune_stays_closer_to_the_policy_it_started_from(reach_
     drift = {}
     for name, use in (("free", None), ("anchored", anchor)):
         env = TaskVecEnv(reach_task, [box_shape], num_envs=4, workers=0, seed=5)
-        train(env, hot, tmp_path / name, "reach", reach_task, iterations=6, init_checkpoint=str(start), anchor=use)
+        train(env, TrainSpec(hot, tmp_path / name, "reach", reach_task, iterations=6, init_checkpoint=str(start), anchor=use))
         env.close()
         tuned = RslRlPolicy(str(export_policy(tmp_path / name / "last.pt", tmp_path / f"{name}.pt"))).actor
         drift[name] = anchor.error(tuned)

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from grt.policies.rsl_rl import CheckpointError, RslRlPolicy
-from grt.rl.train import export_policy, train
+from grt.rl.train import TrainSpec, export_policy, train
 from grt.rl.vec_env import TaskVecEnv
 
 
@@ -43,7 +43,7 @@ def test_shape_weights_are_checked(reach_task, box_shape):
 
 def test_ppo_learns_the_fake_task_and_the_checkpoint_loads(reach_task, box_shape, train_cfg, tmp_path):
     env = TaskVecEnv(reach_task, [box_shape], num_envs=8, workers=0, seed=0)
-    result = train(env, train_cfg, tmp_path, "reach", reach_task, iterations=40)
+    result = train(env, TrainSpec(train_cfg, tmp_path, "reach", reach_task, iterations=40))
     env.close()
     rows = (tmp_path / "metrics.csv").read_text().splitlines()
     assert len(rows) == 41 and result["iterations"] == 40
@@ -65,9 +65,9 @@ def test_ppo_learns_the_fake_task_and_the_checkpoint_loads(reach_task, box_shape
 
 def test_training_resumes_from_its_last_checkpoint(reach_task, box_shape, train_cfg, tmp_path):
     env = TaskVecEnv(reach_task, [box_shape], num_envs=4, workers=0, seed=0)
-    train(env, train_cfg, tmp_path, "reach", reach_task, iterations=10, save_interval=5)
+    train(env, TrainSpec(train_cfg, tmp_path, "reach", reach_task, iterations=10, save_interval=5))
     first = torch.load(tmp_path / "last.pt", weights_only=False)
-    result = train(env, train_cfg, tmp_path, "reach", reach_task, iterations=15, save_interval=5)
+    result = train(env, TrainSpec(train_cfg, tmp_path, "reach", reach_task, iterations=15, save_interval=5))
     env.close()
     assert first["iter"] == 9 and result["iterations"] == 15
     assert len((tmp_path / "metrics.csv").read_text().splitlines()) == 16  # 15 rows, none repeated
@@ -90,11 +90,11 @@ def test_a_frozen_normalizer_keeps_its_statistics_through_ppo(reach_task, box_sh
     import torch
 
     env = TaskVecEnv(reach_task, [box_shape], num_envs=4, workers=0, seed=0)
-    train(env, {**train_cfg, "freeze_normalization": True}, tmp_path, "reach", reach_task, iterations=3,
-          save_interval=1)
+    train(env, TrainSpec({**train_cfg, "freeze_normalization": True}, tmp_path, "reach", reach_task, iterations=3,
+          save_interval=1))
     state = torch.load(tmp_path / "last.pt", map_location="cpu", weights_only=False)["actor_state_dict"]
     assert float(state["obs_normalizer.count"]) == 0.0  # no rollout updated it
     env2 = TaskVecEnv(reach_task, [box_shape], num_envs=4, workers=0, seed=0)
-    train(env2, train_cfg, tmp_path / "free", "reach", reach_task, iterations=3, save_interval=1)
+    train(env2, TrainSpec(train_cfg, tmp_path / "free", "reach", reach_task, iterations=3, save_interval=1))
     free = torch.load(tmp_path / "free" / "last.pt", map_location="cpu", weights_only=False)["actor_state_dict"]
     assert float(free["obs_normalizer.count"]) > 0.0

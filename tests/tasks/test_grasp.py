@@ -12,8 +12,8 @@ import pytest
 import trimesh
 
 from grt.policies.antipodal import AntipodalGraspPolicy
-from grt.policies.base import ClosedLoopPolicy
-from grt.tasks import FAILURE_MODES, TASKS, TrialOutcome, get_task
+from grt.policies.base import GraspStepPolicy
+from grt.tasks import TASKS, TrialOutcome, get_task
 
 CONF = Path(__file__).parents[2] / "conf"
 pytestmark = pytest.mark.sim
@@ -84,7 +84,7 @@ def test_trials_are_deterministic_and_never_silent(session):
     first = session.run_trial(3)
     session.run_trial(4)
     again = session.run_trial(3)
-    assert isinstance(first, TrialOutcome) and first.mode in FAILURE_MODES
+    assert isinstance(first, TrialOutcome) and first.mode in session.failure_modes
     assert (first.mode, first.info["placement"]) == (again.mode, again.info["placement"])
     np.testing.assert_allclose(first.info["object_final"], again.info["object_final"], atol=1e-6)
     assert first.score == float(first.success) == float(first.mode == "success")
@@ -122,7 +122,7 @@ def test_graspable_objects_score_high(session):
         assert all(o.info["wall_s"] < 5.0 for o in outcomes)
 
 
-class _CloseWhereYouStand(ClosedLoopPolicy):
+class _CloseWhereYouStand(GraspStepPolicy):
     """A closed-loop policy that stops at once: the gripper closes on air, above the object."""
 
     def act(self, obs):

@@ -156,20 +156,20 @@ def test_shipped_checkpoints_load_and_insert(name, servo_session):
 def test_ppo_iterations_on_the_real_insertion_env_update_the_policy(tmp_path):
     from grt.evaluators.collision import make_collision
     from grt.policies.rsl_rl import RslRlPolicy
-    from grt.rl.train import export_policy, train
+    from grt.rl.train import TrainSpec, export_policy, train
     from grt.rl.vec_env import Shape, TaskVecEnv
     from tests.rl.conftest import TRAIN_CFG
 
     plug = get_object("usb_plug")
-    task = {"name": "insertion", "num_actions": 6,
+    task = {"name": "insertion",
             "session": {"_target_": "grt.tasks.insertion.InsertionSession", "socket_object": "usb_plug",
                         "cloud_points": 0}}
     env = TaskVecEnv(task, [Shape.of(plug, make_collision("coacd", None, None, None, 64).parts(plug))],
                      num_envs=2, workers=0, seed=0, max_steps=16)
     cfg = {**TRAIN_CFG, "num_steps_per_env": 8}
-    train(env, cfg, tmp_path / "a", "insertion", task, iterations=1)
+    train(env, TrainSpec(cfg, tmp_path / "a", "insertion", task, iterations=1))
     before = torch_load(tmp_path / "a" / "last.pt")["actor_state_dict"]
-    train(env, cfg, tmp_path / "a", "insertion", task, iterations=3)
+    train(env, TrainSpec(cfg, tmp_path / "a", "insertion", task, iterations=3))
     env.close()
     after = torch_load(tmp_path / "a" / "last.pt")["actor_state_dict"]
     changed = [k for k in before if not (before[k] == after[k]).all()]

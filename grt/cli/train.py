@@ -1,0 +1,43 @@
+"""``python -m grt.train`` (``grt-train``): train a task's policy with PPO (rsl-rl); a Hydra app.
+
+    python -m grt.train task=insertion train=insertion_state
+    python -m grt.train task=insertion train=insertion_pcd
+    python -m grt.train resume=outputs/train/insertion/insertion_state/<time>
+
+The work and the run folder's files: :func:`grt.rl.policy_training.train_policy`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+import grt.config  # noqa: F401 - registers schemas and resolvers
+from grt.cli._common import exit_on_user_error, run_cli
+from grt.rl.policy_training import train_policy
+
+# Absolute: Hydra resolves a relative config_path against the package when the app is imported by a
+# shim (``python -m grt.train``), where "../../conf" is no package.
+CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+
+
+@hydra.main(config_path=CONF_DIR, config_name="train_policy", version_base="1.3")
+def main(cfg: DictConfig) -> float:
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    with exit_on_user_error():
+        result = train_policy(cfg, out_dir)
+    print(f"trained {result['iterations']} iterations ({result['steps']} steps) in {result['wall_s']:.0f} s; "
+          f"best training success {result['best_success']:.2f}; files in {out_dir}")
+    ev = result.get("evaluation")
+    if ev:
+        print(f"evaluation: {cfg.task.score} {ev['score']:.4g} (success {ev['success_rate']:.3f}) over "
+              f"{ev['trials']} trials {ev['outcomes']}")
+    return float(result["best_success"])
+
+
+def cli() -> None:
+    """The console script ``grt-train``."""
+    run_cli(main)

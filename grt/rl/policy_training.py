@@ -1,0 +1,116 @@
+"""Train a task's policy with PPO on its nominal object: what ``python -m grt.train`` runs.
+
+The run folder gets ``metrics.csv`` (one row per PPO iteration), ``last.pt`` / ``best.pt`` (rsl-rl
+checkpoints with the GRT config inside, resumable), ``curve.png`` (training curve), ``train.json``
+(figures), with ``train.validation`` also ``val_best.pt`` (the deterministic policy that scored best
+on held-out validation episodes, checked every few iterations and before the first: the exported
+one) and, when ``eval_trials > 0``, ``evaluation.json``: the exported policy scored on seeded
+episodes through the same evaluator as ``python -m grt.evaluate``. The exported policy file
+(``train.export``, no optimizer state) is what ``conf/policy/<name>.yaml`` points at.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from grt.config import plain
+from grt.evaluators.collision import make_collision
+from grt.evaluators.pool import build_session
+from grt.evaluators.sim import SimEvaluator
+from grt.geometry.mesh import load_mesh
+from grt.policies.rsl_rl import RslRlPolicy
+from grt.redteam import episode_seeds
+from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train, write_json
+from grt.rl.vec_env import Shape, TaskVecEnv
+
+log = logging.getLogger("grt.train")
+
+
+def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
+    """Train (or resume, in ``out_dir``) the policy of the ``train_policy`` config; returns ``train.json``'s
+    figures (``iterations``, ``steps``, ``best_success``, ``wall_s``, ``selected``, ``evaluation``, ...)."""
+    mesh = load_mesh(cfg.object)
+    collision = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64)  # as the evaluator
+    parts = collision.parts(mesh)
+    task, train_cfg = plain(cfg.task), plain(cfg.train)
+    env = TaskVecEnv(task, [Shape.of(mesh, parts, str(cfg.object))], num_envs=train_cfg["num_envs"],
+                     workers=train_cfg["workers"], seed=train_cfg["seed"], max_steps=train_cfg["max_steps"])
+    bc = train_cfg.get("bc")
+    expert = instantiate(cfg.train.bc.expert) if bc else None
+    logger = instantiate(cfg.logger)
+    logger.start(out_dir, name=f"train-{train_cfg['name']}", config=plain(cfg))
+    val = train_cfg.get("validation") or {}
+    score, session = (None, None) if not val else _validator(task, mesh, parts, int(val["trials"]))
+    spec = TrainSpec.from_config(
+        train_cfg, out_dir, task_name=cfg.task.name, task_cfg=task, init_checkpoint=cfg.init_checkpoint,
+        extra={"policy_name": train_cfg["name"], "object": str(cfg.object)},
+        on_iteration=lambda row: logger.log_iteration(row["iteration"], row),
+        expert=expert,
+        bc={k: v for k, v in (bc or {}).items() if k != "expert"},
+        validation=None if score is None else ValidationSpec(
+            score, interval=int(val.get("interval", 10)), patience=int(val.get("patience", 5)), tie=val.get("tie"),
+            perfect=1.0 if str(cfg.task.get("score", "success")) == "success" else None))
+    try:
+        result = train(env, spec)
+    finally:
+        env.close()
+        if session is not None:
+            session.close()
+    _export(cfg, train_cfg, mesh, out_dir, result)
+    write_json(out_dir / "train.json", result)
+    logger.log_summary({k: v for k, v in result.items() if not isinstance(v, dict)})
+    logger.finish()
+    return result
+
+
+def _export(cfg: DictConfig, train_cfg: dict, mesh, out_dir: Path, result: dict) -> None:
+    """Plot the curve, export the selected checkpoint as ``policy.pt`` (and to ``train.export``), evaluate
+    it; adds ``selected``, ``evaluation`` and ``exported`` to ``result``."""
+    plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title=f"{train_cfg['name']} on {cfg.object}")
+    best = next(out_dir / f for f in ("val_best.pt", "best.pt", "last.pt") if (out_dir / f).exists())
+    result["selected"] = best.name
+    policy_file = export_policy(best, out_dir / "policy.pt", metrics=result)
+    if cfg.eval_trials:
+        result["evaluation"] = _evaluate(cfg, policy_file, mesh, out_dir)
+        export_policy(best, policy_file, metrics=result)
+    if train_cfg.get("export"):
+        dest = export_policy(policy_file, Path(train_cfg["export"]), metrics=result)
+        result["exported"] = str(dest)
+
+
+def _validator(task: dict, mesh, parts, trials: int):
+    """``checkpoint -> mean score`` of the deterministic policy on ``trials`` validation episodes (seeds
+    disjoint from the evaluation's), in one session of this process; and the session."""
+    session = build_session(task, None)
+    session.load_object(mesh, parts)
+    seeds = [10_000 + i for i in range(trials)]
+
+    def validate(path: Path) -> float:
+        session.policy = RslRlPolicy(str(path), task=task["name"])
+        score = float(np.mean([session.run_trial(s).score for s in seeds]))
+        log.info("validation of %s: %.4g", path.name, score)
+        return score
+
+    return validate, session
+
+
+def _evaluate(cfg: DictConfig, policy_file: Path, mesh, out_dir: Path) -> dict:
+    """Score the trained policy on ``eval_trials`` seeded episodes (the red-team run's seeds for seed 42)."""
+    policy = {"_target_": "grt.policies.rsl_rl.RslRlPolicy", "checkpoint": str(policy_file), "task": cfg.task.name}
+    seeds = episode_seeds(42, int(cfg.eval_trials))
+    start = time.perf_counter()
+    with SimEvaluator(task=plain(cfg.task), policy=policy, workers=cfg.train.workers, nominal=mesh,
+                      cache_dir=f"{cfg.paths.cache_dir}/coacd") as ev:
+        res = ev.evaluate([mesh], seeds)[0]
+    summary = {**res.summary(), "wall_s": time.perf_counter() - start}
+    write_json(out_dir / "evaluation.json", {**summary, "seeds": seeds,
+                                            "trials": [t.__dict__ for t in res.trials]})
+    log.info("evaluation over %d trials: score %.4g, success %.3f %s", len(seeds), summary["score"],
+             summary["success_rate"], summary["outcomes"])
+    return summary

@@ -1,0 +1,18 @@
+"""The task registry is read from conf/task: one place for the lookup, the modes and the action size."""
+
+from __future__ import annotations
+
+from grt.tasks import COMMON_MODES, TASKS, get_task, session_class
+
+
+def test_every_task_config_names_its_session_and_variants_find_their_base():
+    assert {"grasp", "grasp_2cam", "insertion", "drawer"} <= set(TASKS)
+    assert TASKS["grasp_2cam"] == TASKS["grasp"]  # the variant YAML names no class of its own
+    assert session_class({"session": {"_target_": TASKS["insertion"]}}) is get_task("insertion")
+
+
+def test_each_task_declares_its_own_failure_modes_and_action_size():
+    modes = {name: get_task(name).failure_modes for name in TASKS}
+    assert all(set(COMMON_MODES) <= set(m) and len(set(m)) == len(m) for m in modes.values())
+    assert "jammed" in modes["insertion"] and "jammed" not in modes["drawer"] and "jammed" not in modes["grasp"]
+    assert get_task("insertion").num_actions == 6 and get_task("drawer").num_actions == 9
