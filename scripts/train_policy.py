@@ -125,7 +125,7 @@ def _evaluate(cfg: DictConfig, policy_file: Path, mesh, out_dir: Path) -> dict:
 
 @hydra.main(config_path="../conf", config_name="train_policy", version_base="1.3")
 def main(cfg: DictConfig) -> float:
-    from grt.errors import exit_on_user_error
+    from grt.cli._common import exit_on_user_error
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with exit_on_user_error():

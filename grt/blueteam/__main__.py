@@ -332,7 +332,7 @@ def _episodes(policy: dict, geometries, seeds: list[int], evaluator) -> dict[str
 
 def _rered(run_cfg: DictConfig, run_dir: Path, checkpoint: Path, out: Path) -> dict:
     """A red-team run against the fine-tuned policy with the original budget and seed."""
-    from grt.run import run
+    from grt.runner import run
 
     cfg = OmegaConf.create(OmegaConf.to_container(run_cfg, resolve=False))
     cfg.policy.checkpoint = str(checkpoint)
@@ -348,7 +348,7 @@ def _rered(run_cfg: DictConfig, run_dir: Path, checkpoint: Path, out: Path) -> d
 
 @hydra.main(config_path="../../conf", config_name="blueteam", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    from grt.errors import exit_on_user_error
+    from grt.cli._common import exit_on_user_error
 
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with exit_on_user_error():
@@ -366,6 +366,6 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    from grt.errors import run_cli
+    from grt.cli._common import run_cli
 
     run_cli(main)

@@ -21,7 +21,8 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
-from grt.errors import check_output_file, exit_on_user_error, write_output
+from grt.cli._common import exit_on_user_error, write_output
+from grt.errors import check_output_file
 from grt.scores import ScoreSpec
 
 COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name",

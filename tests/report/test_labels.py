@@ -9,7 +9,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from grt.blueteam.core import write_table
-from grt.errors import find_user_error
+from grt.cli._common import find_user_error
 from grt.outputs import print_summary
 from grt.report.__main__ import collect, main, markdown
 from grt.report.plots import curve_figure
