@@ -25,6 +25,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 import grt.config  # noqa: F401 - registers schemas and resolvers
+import grt.runfolder  # noqa: F401 - registers resume_or (hydra.run.dir)
 
 log = logging.getLogger("train_policy")
 
