@@ -21,6 +21,7 @@ import hydra
 import numpy as np
 import trimesh
 from omegaconf import DictConfig
+from tqdm import tqdm
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli, write_output
 from grt.config import ConfigError, validate
@@ -132,8 +133,6 @@ def probe_plausibility(mesh: trimesh.Trimesh, result: HandleSet, sigmas, candida
         One row per (search, σ): ``search``, ``sigma``, ``valid``, ``candidates``, ``self_intersecting``,
         ``inverted`` (candidates with any inverted face).
     """
-    from tqdm import tqdm
-
     deform = ShapeDeformer(mesh, result.handles, result.anchors, **deformer_options(deformer or {}))
     rows = []
     jobs = [(name, float(s)) for name in PROBE_SEARCHES for s in sigmas]
