@@ -132,7 +132,7 @@ def validate(cfg: DictConfig) -> DictConfig:
         ``cfg``, unchanged.
 
     Raises:
-        ConfigError: a user error (one line, exit code 2 in the CLIs, see :mod:`grt.errors`).
+        ConfigError: a user error (one line, exit code 2 in the CLIs, see :mod:`grt.cli._common`).
     """
     budget = cfg.get("budget")
     if budget is not None:
@@ -166,37 +166,8 @@ def object_name(spec: str) -> str:
     return Path(text).stem if ("/" in text or "." in text) else text
 
 
-# A run's own config, written once when it starts (grt/run.py); what ``resume=DIR`` reads.
-RUN_CONFIG = "run_config.yaml"
-
-
-def is_run_folder(path: str | Path) -> bool:
-    """Whether ``resume=path`` can continue a run there: the folder holds the run's own config (or, for a
-    run from before ``run_config.yaml`` existed, a journal and Hydra's record of its start)."""
-    folder = Path(path)
-    return (folder / RUN_CONFIG).is_file() or (
-        (folder / "journal.jsonl").is_file() and (folder / ".hydra" / "config.yaml").is_file())
-
-
-def resume_or(resume: str | None, default: str) -> str:
-    """``hydra.run.dir``: the resumed run's own folder, else ``default`` (a new one).
-
-    Hydra creates this folder and writes ``.hydra/`` and ``run.log`` into it before the app runs, so a
-    folder that no GRT app made is refused here, before anything is written (``python -m grt.run`` refuses
-    it earlier still, with one line and exit code 2).
-    """
-    if not resume:
-        return default
-    # Shared by grt.run, grt.blueteam and scripts/train_policy.py: a folder one of them made (a red-team
-    # run, or Hydra's record of a fine-tune / training run); grt.run checks its own kind first.
-    if not (is_run_folder(resume) or (Path(resume) / ".hydra" / "config.yaml").is_file()):
-        raise ValueError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG} or .hydra/config.yaml), "
-                         "so nothing to resume")
-    return str(resume)
-
-
 def register() -> None:
-    """Register schemas and resolvers (idempotent)."""
+    """Register schemas and resolvers (idempotent); ``resume_or`` is :mod:`grt.runfolder`'s."""
     cs = ConfigStore.instance()
     cs.store(group="budget", name="schema", node=BudgetSchema)
     if not OmegaConf.has_resolver("object_name"):
@@ -204,8 +175,6 @@ def register() -> None:
     if not OmegaConf.has_resolver("grt_dir"):
         # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
         OmegaConf.register_new_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
-    if not OmegaConf.has_resolver("resume_or"):
-        OmegaConf.register_new_resolver("resume_or", resume_or)
 
 
 register()

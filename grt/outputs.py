@@ -8,13 +8,10 @@ removes the CrashShapes of an earlier writing that are no longer among the lowes
 from __future__ import annotations
 
 import json
-import os
 import re
-import secrets
 import shutil
 import subprocess
-from collections.abc import Iterator
-from contextlib import contextmanager, suppress
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +20,7 @@ from omegaconf import DictConfig
 
 from grt import metrics
 from grt.config import object_name
+from grt.fileio import atomic_path, write_text_atomic
 from grt.scores import ScoreSpec
 
 
@@ -70,30 +68,6 @@ def machine_state() -> dict:
             versions[dist] = md.version(dist)
     info["versions"] = versions
     return info
-
-
-@contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """A temporary name next to ``path`` to write to; renamed onto ``path`` when the block succeeds.
-
-    The temporary name keeps ``path``'s suffix (writers such as ``trimesh.export`` and ``savefig``
-    pick the format by it) and is removed when the block raises.
-    """
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
-    try:
-        yield tmp
-        with open(tmp, "rb") as f:  # durable before it replaces the old version
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
 
 
 def save_nominal(run_dir: Path, mesh: trimesh.Trimesh) -> Path:

@@ -34,7 +34,7 @@ def main() -> None:
     from omegaconf import OmegaConf
 
     from grt.blueteam.core import load_run, name_of, run_geometry
-    from grt.errors import exit_on_user_error
+    from grt.cli._common import exit_on_user_error
     from grt.outputs import crash_records
     from grt.redteam import episode_seeds
     from grt.tasks.insertion import InsertionSession

@@ -7,8 +7,8 @@ from dataclasses import fields
 
 import pytest
 
+from grt.cli._common import exit_on_user_error, find_user_error
 from grt.config import BUDGET_KEYS, BudgetSchema, ConfigError, check_budget, validate
-from grt.errors import exit_on_user_error, find_user_error
 from tests.runner.conftest import CONF, compose_run
 
 BUDGETS = sorted(p.stem for p in (CONF / "budget").glob("*.yaml"))

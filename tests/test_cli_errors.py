@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 import trimesh
 
-import grt.bench.__main__ as bench_cli
+import grt.cli.bench as bench_cli
+import grt.cli.deform as deform_cli
 import grt.cli.report as report_cli
-import grt.deform as deform_cli
-from grt.errors import INTERRUPTED, exit_on_user_error
+from grt.cli._common import exit_on_user_error
+from grt.errors import INTERRUPTED
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -193,7 +194,7 @@ def test_select_writes_into_hydra_run_dir(files):
 
 
 def test_run_cli_keeps_tracebacks_of_real_bugs_and_restores_the_environment(monkeypatch):
-    from grt.errors import run_cli
+    from grt.cli._common import run_cli
 
     monkeypatch.delenv("HYDRA_FULL_ERROR", raising=False)
 

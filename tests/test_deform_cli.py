@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from grt.deform import TargetFileError, read_targets
+from grt.cli.deform import TargetFileError, read_targets
 from grt.objects import get_object
 
 

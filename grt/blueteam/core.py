@@ -49,20 +49,20 @@ class Geometry:
 
 
 def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
-    """The red-team run's config (as it ran) and its journal records.
+    """The red-team run's config (as it ran, migrated to the current format) and its journal records.
 
     Raises:
         BlueTeamError: not a finished red-team run folder.
     """
-    run_dir = Path(run_dir)
-    cfg_file, journal = run_dir / ".hydra" / "config.yaml", run_dir / "journal.jsonl"
-    if not cfg_file.exists() or not journal.exists() or not (run_dir / "handles.json").exists():
-        raise BlueTeamError(f"{run_dir} is not a red-team run folder (it needs .hydra/config.yaml, handles.json and "
-                            "journal.jsonl): give run=outputs/<task>/<object>/<selector>-<optimizer>/<time>")
-    import grt.config  # noqa: F401 - resolvers the run's config uses
     from grt.journal import Journal
+    from grt.runfolder import RUN_CONFIG, is_run_folder, load_run_config
 
-    return OmegaConf.load(cfg_file), Journal(journal).records
+    run_dir = Path(run_dir)
+    journal = run_dir / "journal.jsonl"
+    if not is_run_folder(run_dir) or not journal.exists() or not (run_dir / "handles.json").exists():
+        raise BlueTeamError(f"{run_dir} is not a red-team run folder (it needs {RUN_CONFIG}, handles.json and "
+                            "journal.jsonl): give run=outputs/<task>/<object>/<selector>-<optimizer>/<time>")
+    return load_run_config(run_dir), Journal(journal).records
 
 
 def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tuple:

@@ -1,6 +1,159 @@
-# TEMPORARY (blueteam branch): the apps helper's grt/cli/_common.py replaces this file at merge.
-"""Re-exports the CLI error handling from :mod:`grt.errors` until it moves here."""
+"""One error path for GRT's command-line apps: a user's mistake is one line and exit code 2.
 
-from grt.errors import exit_on_user_error, run_cli
+Every error in what the user gave subclasses :class:`grt.errors.UserError` and carries a message that
+names the problem and the fix; :func:`exit_on_user_error` prints it without a traceback, and prints one
+line with exit code 130 for Ctrl-C. Mistakes Hydra finds while it composes the config (an unknown key or
+option, a value of the wrong type), before the app runs, are turned into the same one line by
+:func:`run_cli`, which each Hydra app's ``cli()`` calls.
 
-__all__ = ["exit_on_user_error", "run_cli"]
+``CONF_DIR`` is the config folder the Hydra apps give ``@hydra.main``: an absolute path, because Hydra
+reads a relative ``config_path`` as a Python package (``pkg://conf``) whenever the app's function lives in
+an imported module, which it always does here (the ``python -m`` shims and console scripts import it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from hydra.errors import ConfigCompositionException, HydraException, OverrideParseException
+from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
+
+import grt.runfolder  # noqa: F401 - registers the resume_or resolver of hydra.run.dir before composition
+from grt.config import BudgetSchema, budget_hint, unknown_budget_key
+from grt.errors import INTERRUPTED, OutputError, UserError
+from grt.fileio import write_bytes_atomic
+
+CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+_PACKAGE = Path(__file__).resolve().parents[1]  # grt/
+_NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
+
+
+def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:
+    """The user error behind ``exc`` (Hydra wraps errors raised while instantiating), or ``None``.
+
+    ``also``: more types to count as user errors (for an error class that does not subclass
+    :class:`grt.errors.UserError`).
+    """
+    kinds = (UserError, *also)
+    seen = 0
+    while exc is not None and seen < 10:
+        if isinstance(exc, kinds):
+            return exc
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return None
+
+
+@contextlib.contextmanager
+def exit_on_user_error(*also: type[BaseException]):
+    """Turn a user error (or one of the types ``also``) into ``error: <message>`` on stderr and exit code 2,
+    Ctrl-C into one line and exit code 130."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        print("interrupted (Ctrl-C)", file=sys.stderr)
+        raise SystemExit(INTERRUPTED) from None
+    except Exception as exc:
+        found = find_user_error(exc, also) or _compose_error(exc)
+        if found is None:
+            raise
+        print(f"error: {found}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def run_cli(main: Callable[[], object]) -> None:
+    """Call a ``@hydra.main`` app so that every user mistake is one ``error:`` line and exit code 2.
+
+    Covers what happens before the app's own code runs: Hydra's composition errors (unknown key or
+    option, wrong type, bad override syntax) and an output folder it cannot create or write. Other
+    errors keep their traceback (exit code 1). ``HYDRA_FULL_ERROR=1`` set by the user is honoured.
+    Use: ``def cli(): run_cli(main)``.
+    """
+    previous = os.environ.get("HYDRA_FULL_ERROR")
+    if previous == "1":
+        with exit_on_user_error():
+            main()
+        return
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra re-raises what it would print (several lines, exit code 1)
+    try:
+        with exit_on_user_error():
+            try:
+                main()
+            except OSError as exc:
+                found = _setup_error(exc)
+                if found is None:
+                    raise
+                raise found from exc
+    finally:
+        if previous is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = previous
+
+
+def write_output(path: str | Path, data: bytes | str, flag: str = "--out PATH") -> None:
+    """Write ``path`` whole or not at all (a temporary file renamed over it; Ctrl-C leaves no half file).
+
+    Raises:
+        OutputError: the folder is read-only or full (names the path and the fix).
+    """
+    try:
+        write_bytes_atomic(path, data.encode() if isinstance(data, str) else data)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror}; choose a folder you can write to ({flag})") \
+            from None
+
+
+def one_line(text: str) -> str:
+    """Hydra's and OmegaConf's several-line messages as one line (lists joined, object dumps dropped)."""
+    parts: list[str] = []
+    for raw in str(text).split("Config search path:")[0].splitlines():
+        line = raw.strip()
+        if not line or line.startswith(_NOISE):
+            continue
+        if raw.startswith("\t") and parts:  # an item of a list ("Available options in 'selector':")
+            parts[-1] += (" " if parts[-1].endswith(":") else ", ") + line
+        else:
+            parts.append(line.rstrip("."))
+    return "; ".join(parts)
+
+
+def _compose_error(exc: BaseException) -> str | None:
+    """One line for a mistake Hydra finds while composing a config, or ``None`` for other errors."""
+    if not isinstance(exc, (ConfigCompositionException, OverrideParseException)):
+        return None
+    cause = exc.__cause__
+    key = str(getattr(cause, "full_key", "") or "")
+    in_budget = getattr(cause, "object_type", None) is BudgetSchema
+    if isinstance(cause, (ConfigKeyError, ConfigAttributeError)) and in_budget:  # Hydra would hint at '+'
+        return unknown_budget_key(key.split(".", 1)[1])
+    text = one_line(str(exc))
+    if isinstance(exc, OverrideParseException):
+        text = f"cannot parse the override {exc.override!r}: {text}"
+    if isinstance(cause, OmegaConfBaseException):
+        text += "; " + one_line(str(cause))
+    hint = budget_hint(key)
+    return f"{text}; {hint}" if hint else text
+
+
+def _setup_error(exc: OSError) -> OutputError | None:
+    """An output folder Hydra could not create or write before the app ran (no GRT code below Hydra's).
+
+    The frames above Hydra's (this module, the app's ``cli()``) only launch it; a GRT frame below a Hydra
+    frame is the app's own code running, whose error handling applies.
+    """
+    if isinstance(exc, HydraException) or not exc.filename:
+        return None
+    tb, in_hydra = exc.__traceback__, False
+    while tb is not None:
+        path = Path(tb.tb_frame.f_code.co_filename).resolve()
+        if _PACKAGE not in path.parents:
+            in_hydra = True
+        elif in_hydra:
+            return None  # raised by the app: its own error handling applies
+        tb = tb.tb_next
+    return OutputError(f"cannot write {exc.filename}: {exc.strerror}; give an output folder you can write "
+                       "to: hydra.run.dir=PATH (hydra.sweep.dir=PATH with -m)")

@@ -16,14 +16,11 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 import grt.config  # noqa: F401 - schemas and resolvers
+import grt.runfolder  # noqa: F401 - registers the resume_or resolver
 from grt.blueteam.core import BlueTeamError
 from grt.blueteam.study import blueteam
-from grt.cli._common import exit_on_user_error, run_cli
-from grt.run import run as red_team
-
-# Absolute: Hydra resolves a relative config_path against the package when the app is imported by a
-# shim (``python -m grt.blueteam``), where "../../conf" is no package.
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
+from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
+from grt.runner import run as red_team
 
 
 @hydra.main(config_path=CONF_DIR, config_name="blueteam", version_base="1.3")

@@ -12,7 +12,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from grt.errors import check_output_file, exit_on_user_error, write_output
+from grt.cli._common import exit_on_user_error, write_output
+from grt.errors import check_output_file
 from grt.report.tables import ReportError, aggregate, collect, csv_text, markdown, render, update_readmes
 
 

@@ -16,12 +16,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 import grt.config  # noqa: F401 - registers schemas and resolvers
-from grt.cli._common import exit_on_user_error, run_cli
+import grt.runfolder  # noqa: F401 - registers the resume_or resolver
+from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
 from grt.rl.policy_training import train_policy
-
-# Absolute: Hydra resolves a relative config_path against the package when the app is imported by a
-# shim (``python -m grt.train``), where "../../conf" is no package.
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 
 
 @hydra.main(config_path=CONF_DIR, config_name="train_policy", version_base="1.3")

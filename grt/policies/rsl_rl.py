@@ -37,7 +37,7 @@ def load_checkpoint(path: str | Path) -> dict:
     path = Path(path).expanduser()
     if not path.is_file():
         raise CheckpointError(f"policy checkpoint {path} does not exist: train one with "
-                              "`python scripts/train_policy.py ...` or point policy.checkpoint at a .pt file")
+                              "`python -m grt.train ...` or point policy.checkpoint at a .pt file")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:
@@ -45,7 +45,7 @@ def load_checkpoint(path: str | Path) -> dict:
                               "corrupt or not a torch file: re-train or re-download it") from err
     if not isinstance(ckpt, dict) or "grt" not in ckpt or "actor_state_dict" not in ckpt:
         raise CheckpointError(f"{path} is not a GRT rsl-rl checkpoint (no 'grt' config or actor weights inside): "
-                              "checkpoints written by scripts/train_policy.py carry both")
+                              "checkpoints written by python -m grt.train carry both")
     return ckpt
 
 

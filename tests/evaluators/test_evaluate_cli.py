@@ -13,7 +13,7 @@ from grt.bench.grasp import compose
 
 
 def test_evaluate_composes_and_scores_with_a_toy_session(toy_configs, u_mesh, tmp_path):
-    from grt.evaluate import evaluate
+    from grt.cli.evaluate import evaluate
 
     path = tmp_path / "u_block.ply"
     u_mesh.export(path)
@@ -45,7 +45,7 @@ def test_clear_errors_for_bad_objects(obj, message, tmp_path):
 
 def test_evaluate_reports_a_continuous_score_with_its_unit_and_interval(toy_configs, u_mesh, tmp_path):
     from grt import metrics
-    from grt.evaluate import evaluate, figures
+    from grt.cli.evaluate import evaluate, figures
 
     path = tmp_path / "u_block.ply"
     u_mesh.export(path)
@@ -68,7 +68,7 @@ def test_evaluate_reports_a_continuous_score_with_its_unit_and_interval(toy_conf
 
 
 def test_figures_of_a_binary_task_say_success_rate():
-    from grt.evaluate import figures
+    from grt.cli.evaluate import figures
 
     summary = {"object": "mug", "mesh_hash": "abc", "score": 0.75, "success_rate": 0.75, "ci95": [0.3, 0.95],
                "trials": 4, "outcomes": {"success": 3, "missed": 1}, "wall_s": 1.0, "trials_per_s": 4.0,
@@ -80,7 +80,7 @@ def test_a_crashshape_file_is_scored_with_the_parts_its_run_saved(toy_configs, u
     """A run saves each CrashShape with its simulated convex parts; re-scoring the file uses them."""
     import trimesh
 
-    from grt.evaluate import evaluate, saved_parts
+    from grt.cli.evaluate import evaluate, saved_parts
     from grt.evaluators.collision import CollisionError
 
     path = tmp_path / "rank1_it2_c5.obj"

@@ -57,8 +57,8 @@ def test_object_scale_is_refused_where_the_task_reloads_the_mesh_file(mm_mesh):
 
 
 def test_evaluate_and_select_refuse_it_before_any_simulation(mm_mesh, tmp_path):
-    from grt.evaluate import evaluate
-    from grt.select import select
+    from grt.cli.evaluate import evaluate
+    from grt.cli.select import select
     from tests.runner.conftest import compose_run
 
     cfg = compose_run([f"object={mm_mesh}", "budget=smoke"], config_name="evaluate")

@@ -9,8 +9,8 @@ import pytest
 from omegaconf import OmegaConf
 
 from grt.blueteam.core import write_table
+from grt.cli._common import find_user_error
 from grt.cli.report import main
-from grt.errors import find_user_error
 from grt.outputs import print_summary
 from grt.report.plots import curve_figure
 from grt.report.tables import collect, markdown

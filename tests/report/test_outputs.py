@@ -101,7 +101,7 @@ def test_a_run_whose_every_candidate_folds_says_so_and_how_to_fix_it(tmp_path, c
     the search found nothing and what to change."""
     from grt.geometry.quality import candidate_validity
     from grt.outputs import print_summary
-    from grt.run import FoldingWatch
+    from grt.runner import FoldingWatch
 
     cfg = compose_run(["object=can", "task.score=opening", "+task.score_unit=m", "+task.ci=bootstrap",
                        "budget=smoke", "budget.sigma=0.8", f"paths.output_dir={tmp_path}"])

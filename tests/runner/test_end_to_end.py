@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from grt.run import run
+from grt.runner import run
 from tests.runner.conftest import compose_run
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from grt.run import run
+from grt.runner import run
 from tests.runner.conftest import compose_run
 
 ROOT = Path(__file__).resolve().parents[2]

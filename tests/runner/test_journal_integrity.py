@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from grt.errors import find_user_error
+from grt.cli._common import find_user_error
+from grt.fileio import atomic_path, write_text_atomic
 from grt.journal import Journal, JournalError
-from grt.outputs import atomic_path, save_crashshapes, write_outputs, write_text_atomic
+from grt.outputs import save_crashshapes, write_outputs
 from tests.runner.conftest import compose_run
 from tests.runner.test_resume_checks import make_loop
 

@@ -16,8 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from grt.config import RUN_CONFIG, resume_or
-from grt.run import ResumeError, resume_overrides
+from grt.runfolder import RUN_CONFIG, ResumeError, resume_or, resume_overrides
 from tests.runner._toy_run import TOY
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -106,7 +106,7 @@ def test_fallback_only_when_configured_and_recorded(sphere, tmp_path, monkeypatc
 
 
 def test_api_key_never_written(chat_server, api_key, sphere, tmp_path):
-    from grt.select import select
+    from grt.cli.select import select
 
     server = chat_server([STAGE1, STAGE2])
     select_out = tmp_path / "out"

@@ -1,0 +1,344 @@
+"""Run folders: the one module that writes, reads, validates, resumes and migrates them.
+
+A red-team run writes its own record once, when it starts, to ``run_config.yaml`` (read-only)::
+
+    grt_format: 2          # the folder's format (absent: format 1)
+    overrides: [...]       # its command line (Hydra's; resume=, hydra.* and paths.output_dir left out)
+    choices: {...}         # its config-group options
+    config: {...}          # its resolved config
+
+and ``resume=DIR`` alone is the whole command to continue it. :func:`resume_overrides` checks DIR and the
+command before Hydra starts, so a refused resume writes nothing anywhere, and hands Hydra the run's own
+overrides; :func:`own_config` then gives the app the saved config. With ``resume=`` only the
+:data:`RESUME_FREE` keys may be given (they do not change the search); any other key must keep the run's
+own value. Blue-team fine-tunes and training runs use their Hydra record (``.hydra/config.yaml``) as their
+own, through :func:`resume_or`.
+
+Formats: 0, a folder from before ``run_config.yaml`` (a journal and Hydra's record of its start); 1, a
+``run_config.yaml`` without ``grt_format``; 2, the current one. Every reader goes through
+:func:`load_run_config` or :class:`SavedRun`, which :func:`migrate` the config to the current format, so no
+code elsewhere needs a branch for older folders.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+from dataclasses import dataclass
+from pathlib import Path
+
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.core.override_parser.types import Override
+from hydra.errors import HydraException
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from grt.config import plain
+from grt.fileio import write_text_atomic
+from grt.geometry.deform import DEFAULT_RADIUS
+from grt.journal import JournalError
+from grt.scores import ScoreConfigError, nominal_floor
+
+# A run's own config, written once when it starts; what ``resume=DIR`` reads.
+RUN_CONFIG = "run_config.yaml"
+FORMAT_KEY = "grt_format"
+FORMAT = 2
+# Keys a resume may set (with what is under them): none changes the search (results are identical with any
+# number of workers; loggers, the collision cache and Hydra's own files only record; the nominal floor only
+# decides whether the run goes on after S0), so a resumed run stays the run its journal was written by.
+RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra", "task.nominal_floor",
+               "budget.confirm_trials")
+# The parts of a resumed run's config taken from the command; all the rest is the run's saved config.
+FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths",
+                "task.nominal_floor", "budget.confirm_trials")
+RUN_FOLDERS = "outputs/<task>/<object>/<selector>-<optimizer>/<time>"
+# Targets renamed since format 1: the evaluators package was ``grt.eval`` (the alias package is gone).
+RENAMED_TARGETS = {"grt.eval.evaluator.SimEvaluator": "grt.evaluators.sim.SimEvaluator"}
+# Keys a format-1 (or 0) config may lack, with the values such a run was made with.
+ADDED_DEFAULTS = {"object_scale": 1.0, "mesh": {}, "budget.confirm_trials": 0,
+                  "deformer.lam": 1.0, "deformer.method": "exact", "deformer.radius": DEFAULT_RADIUS,
+                  "deformer.validity": False}
+_ABSENT = object()
+
+
+class ResumeError(JournalError):
+    """``resume=`` of a folder that is not a run, or with settings that would change the run."""
+
+
+# ----------------------------------------------------------------------------------------- validating
+
+def is_run_folder(path: str | Path) -> bool:
+    """Whether ``resume=path`` can continue a run there: the folder holds the run's own config (or, for a
+    format-0 folder, a journal and Hydra's record of its start)."""
+    folder = Path(path)
+    return (folder / RUN_CONFIG).is_file() or (
+        (folder / "journal.jsonl").is_file() and (folder / ".hydra" / "config.yaml").is_file())
+
+
+def refuse_unless_run(run_dir: Path) -> None:
+    """Raise :class:`ResumeError` unless ``run_dir`` is a run folder (names the problem and the fix)."""
+    if not run_dir.is_dir():
+        why = "no such folder"
+    elif not is_run_folder(run_dir):
+        why = f"not a GRT run folder (no {RUN_CONFIG})"
+    else:
+        return
+    raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier run "
+                      f"({RUN_FOLDERS}).")
+
+
+def resume_or(resume: str | None, default: str) -> str:
+    """``hydra.run.dir``: the resumed run's own folder, else ``default`` (a new one).
+
+    Hydra creates this folder and writes ``.hydra/`` and ``run.log`` into it before the app runs, so a
+    folder that no GRT app made is refused here, before anything is written (``python -m grt.run`` refuses
+    it earlier still, with one line and exit code 2).
+    """
+    if not resume:
+        return default
+    # Shared by grt.run, grt.blueteam and grt.train: a folder one of them made (a red-team run, or Hydra's
+    # record of a fine-tune / training run); grt.run checks its own kind first.
+    if not (is_run_folder(resume) or (Path(resume) / ".hydra" / "config.yaml").is_file()):
+        raise ValueError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG} or .hydra/config.yaml), "
+                         "so nothing to resume")
+    return str(resume)
+
+
+def register() -> None:
+    """Register the ``resume_or`` resolver of ``hydra.run.dir`` (idempotent)."""
+    if not OmegaConf.has_resolver("resume_or"):
+        OmegaConf.register_new_resolver("resume_or", resume_or)
+
+
+register()
+
+
+# --------------------------------------------------------------------------------- writing and reading
+
+def save_run_config(cfg: DictConfig, run_dir: Path) -> None:
+    """Write the run's own record once, read-only: what ``resume=`` reads, so no later command rewrites it.
+
+    ``overrides`` and ``choices`` are its command line and config-group options (Hydra's; empty when
+    :func:`grt.runner.run` is called without Hydra), ``config`` its resolved config.
+    """
+    path = run_dir / RUN_CONFIG
+    if path.exists():
+        return
+    hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
+    config = {**plain(cfg), "resume": None}
+    _set_absent(config, "task.nominal_floor", _floor(config))  # every FROM_COMMAND key a run reads is here
+    record = {
+        FORMAT_KEY: FORMAT,
+        "overrides": [o for o in hydra_cfg.overrides.task if _key(o) != "resume"] if hydra_cfg else [],
+        "choices": {k: v for k, v in plain(hydra_cfg.runtime.choices).items() if not _under(k, ("hydra",))}
+        if hydra_cfg else {},
+        "config": config,
+    }
+    write_text_atomic(path, f"# {RUN_CONFIG}: this run as it started (written once by grt.run). Continue it "
+                      f"with\n# python -m grt.run resume=<this folder>\n" + OmegaConf.to_yaml(record))
+    path.chmod(0o444)
+
+
+def read_record(run_dir: Path) -> tuple[int, list, dict, DictConfig]:
+    """``(format, overrides, choices, config)`` as the folder stores them (not migrated).
+
+    Format 0 is read from Hydra's files (right unless a resume of that time rewrote them).
+    """
+    if (run_dir / RUN_CONFIG).is_file():
+        record = OmegaConf.load(run_dir / RUN_CONFIG)
+        version = int(record.get(FORMAT_KEY, 1))
+        overrides, choices, config = record.overrides, record.choices, record.config
+    else:
+        hydra_dir = run_dir / ".hydra"
+        version = 0
+        config = OmegaConf.load(hydra_dir / "config.yaml")
+        overrides = OmegaConf.load(hydra_dir / "overrides.yaml")
+        choices = OmegaConf.load(hydra_dir / "hydra.yaml").hydra.runtime.choices
+    return version, OmegaConf.to_container(overrides), OmegaConf.to_container(choices), config
+
+
+def migrate(cfg: DictConfig, version: int) -> DictConfig:
+    """A run's config of format ``version`` in the current format (a new object; interpolations kept).
+
+    From format 0 or 1: renamed ``_target_`` classes (:data:`RENAMED_TARGETS`, the ``grt.eval`` package)
+    get their new names, and keys added since (:data:`ADDED_DEFAULTS`, ``task.nominal_floor``) get the
+    values those runs were made with.
+    """
+    data = OmegaConf.to_container(cfg, resolve=False)
+    if version < FORMAT:
+        data = _rename_targets(data)
+        for key, value in ADDED_DEFAULTS.items():
+            _set_absent(data, key, value)
+        _set_absent(data, "task.nominal_floor", _floor(data))
+    return OmegaConf.create(data)
+
+
+def load_run_config(run_dir: str | Path) -> DictConfig:
+    """The red-team run's config as it ran, in the current format (see :func:`migrate`).
+
+    Raises:
+        ResumeError: ``run_dir`` is not a run folder.
+    """
+    run_dir = Path(run_dir)
+    refuse_unless_run(run_dir)
+    if (run_dir / RUN_CONFIG).is_file():
+        record = OmegaConf.load(run_dir / RUN_CONFIG)
+        return migrate(record.config, int(record.get(FORMAT_KEY, 1)))
+    return migrate(OmegaConf.load(run_dir / ".hydra" / "config.yaml"), 0)  # format 0: Hydra's record
+
+
+def _rename_targets(node):
+    if isinstance(node, dict):
+        return {k: RENAMED_TARGETS.get(v, v) if k == "_target_" and isinstance(v, str) else _rename_targets(v)
+                for k, v in node.items()}
+    if isinstance(node, list):
+        return [_rename_targets(v) for v in node]
+    return node
+
+
+def _set_absent(data: dict, key: str, value) -> None:
+    """Set dotted ``key`` in ``data`` to ``value`` unless it is there (or its parent is not a mapping)."""
+    if value is _ABSENT:
+        return
+    *parents, last = key.split(".")
+    for part in parents:
+        data = data.get(part) if isinstance(data, dict) else None
+        if not isinstance(data, dict):
+            return
+    if last not in data:
+        data[last] = value
+
+
+def _floor(data: dict):
+    """What an absent ``task.nominal_floor`` means for the run's task (``_ABSENT``: leave it absent)."""
+    task = data.get("task")
+    if not isinstance(task, dict) or "nominal_floor" in task:
+        return _ABSENT
+    try:
+        return nominal_floor(task)
+    except (ScoreConfigError, ValueError):  # a bad task.ci: the run reports it itself
+        return _ABSENT
+
+
+# ----------------------------------------------------------------------------------------------- resuming
+
+@dataclass
+class SavedRun:
+    """A run's own start, as its folder records it.
+
+    Attributes:
+        overrides: its command line's overrides (``resume=``, ``hydra.*`` and ``paths.output_dir`` left out).
+        choices: its config-group options, e.g. ``{"selector": "all"}``.
+        config: its config (resolved; Hydra's record for a format-0 folder), migrated to the current format.
+        format: the folder's format (see the module docstring).
+    """
+
+    overrides: list[str]
+    choices: dict
+    config: DictConfig
+    format: int = FORMAT
+
+    @classmethod
+    def load(cls, run_dir: Path) -> SavedRun:
+        """Read ``run_dir``; a missing folder or one that is not a run raises :class:`ResumeError`."""
+        refuse_unless_run(run_dir)
+        try:
+            version, overrides, choices, config = read_record(run_dir)
+            config = migrate(config, version)
+        except Exception as exc:  # noqa: BLE001 - any unreadable record is the same user error
+            raise ResumeError(f"resume={run_dir}: its record of the run cannot be read ({exc}); "
+                              "start a new run") from None
+        own = [o for o in overrides if not _under(_key(o), ("resume", "hydra", "paths.output_dir"))]
+        return cls(own, {k: v for k, v in choices.items() if not _under(k, ("hydra",))}, config, version)
+
+    def value(self, key: str):
+        """The run's option of group ``key``, or its value of config key ``key`` (``_ABSENT``: none)."""
+        if key in self.choices:
+            return self.choices[key]
+        value = OmegaConf.select(self.config, key, default=_ABSENT, throw_on_resolution_failure=False)
+        return OmegaConf.to_container(value) if isinstance(value, (DictConfig, ListConfig)) else value
+
+    def keeps(self, override: Override) -> bool:
+        """Whether ``override`` gives the run's own value (so it changes nothing)."""
+        if override.is_sweep_override():
+            return False
+        have = self.value(override.key_or_group)
+        if override.is_delete():
+            return have is _ABSENT
+        return have is not _ABSENT and have == override.value()
+
+
+def resume_overrides(overrides: list[str]) -> list[str]:
+    """The overrides Hydra gets for a command with ``resume=DIR``: the run's own ones.
+
+    Called before Hydra starts, so a refused resume writes nothing. The other overrides given must be
+    :data:`RESUME_FREE` keys or give the run's own values; the free ones are passed on, and Hydra writes
+    its files of a resume under ``DIR/.hydra/resume`` (``DIR/.hydra`` stays the record of the start).
+
+    Returns:
+        ``overrides`` unchanged without ``resume=``.
+
+    Raises:
+        ResumeError: DIR is missing or not a run, or an override would change the run (names the keys).
+    """
+    try:
+        given = OverridesParser.create().parse_overrides(overrides)
+    except HydraException:
+        return overrides  # Hydra reports a malformed override itself
+    resume = [o for o in given if o.key_or_group == "resume"]
+    if not resume or not resume[-1].value():
+        return overrides
+    run_dir = resume[-1].value()
+    if not isinstance(run_dir, str):
+        raise ResumeError(f"{resume[-1].input_line}: resume= takes one run folder")
+    saved = SavedRun.load(Path(run_dir))
+    free = [o for o in given if _under(o.key_or_group, RESUME_FREE)]
+    changed = [o for o in given if o.key_or_group != "resume" and o not in free and not saved.keeps(o)]
+    if changed:
+        what = ", ".join(f"{o.key_or_group} (the run's: {_shown_value(saved.value(o.key_or_group))}, "
+                         f"given: {o.input_line.partition('=')[2] or 'deleted'})" for o in changed)
+        raise ResumeError(
+            f"resume={run_dir}: {what} would change the run, which keeps its own config ({RUN_CONFIG} there). "
+            f"Continue it with resume={run_dir} alone (allowed with it: {', '.join(RESUME_FREE)}.*), "
+            "or start a new run with these settings: the same command without resume=")
+    own = [line for line in saved.overrides if not any(_under(_key(line), (o.key_or_group,)) for o in free)]
+    return [*own, "hydra.output_subdir=.hydra/resume", *(o.input_line for o in free), resume[-1].input_line]
+
+
+def own_config(cfg: DictConfig) -> DictConfig:
+    """A resumed run's config: its saved one, with the :data:`FROM_COMMAND` parts of this command.
+
+    A format-0 folder has no resolved record of its config: ``cfg``, composed from its own overrides
+    (:func:`resume_overrides`), is its config.
+    """
+    saved = SavedRun.load(Path(cfg.resume))
+    if saved.format == 0:
+        return cfg
+    own = OmegaConf.create(OmegaConf.to_container(saved.config))
+    for key in FROM_COMMAND:
+        value = OmegaConf.select(cfg, key, default=_ABSENT)
+        if value is not _ABSENT and OmegaConf.select(own, key, default=_ABSENT) is not _ABSENT:
+            OmegaConf.update(own, key, plain(value) if isinstance(value, DictConfig) else value, merge=False)
+    own.resume = cfg.resume
+    return own
+
+
+def interrupted(run_dir: Path) -> str:
+    """The line printed on Ctrl-C: how to continue the run (or that nothing of it was saved yet)."""
+    if not is_run_folder(run_dir):
+        return "interrupted (Ctrl-C) before the run saved its config; start it again with the same command"
+    shown = Path(os.path.relpath(run_dir)) if run_dir.resolve().is_relative_to(Path.cwd()) else run_dir
+    return f"interrupted (Ctrl-C); continue this run with: python -m grt.run resume={shlex.quote(str(shown))}"
+
+
+def _key(override: str) -> str:
+    return OverridesParser.create().parse_override(override).key_or_group
+
+
+def _under(key: str, prefixes: tuple[str, ...]) -> bool:
+    """Whether ``key`` is one of ``prefixes`` or lies under one (``logger.mode``, ``hydra/launcher``)."""
+    return any(key == p or key.startswith((f"{p}.", f"{p}/")) for p in prefixes)
+
+
+def _shown_value(value) -> str:
+    return "unset" if value is _ABSENT else str(value)

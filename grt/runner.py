@@ -1,0 +1,160 @@
+"""One red-team run as a plain function: ``run(cfg) -> summary``, which the ``grt-run`` app and tests call.
+
+:func:`run` takes a composed (or, for a resume, the run's own) config: it prepares the object, saves the
+run's record (:mod:`grt.runfolder`), selects handles, builds the deformer, optimizer and evaluator from the
+config, runs :class:`grt.redteam.RedTeamLoop` (Algorithm 1), re-scores the CrashShapes on fresh episodes
+when ``budget.confirm_trials`` > 0 (:mod:`grt.confirm`) and writes the run folder's outputs
+(:mod:`grt.outputs`). The command line (Hydra, ``resume=``, Ctrl-C, sweeps) is :mod:`grt.cli.run`'s.
+"""
+
+from __future__ import annotations
+
+import logging
+import shlex
+import time
+from pathlib import Path
+
+import numpy as np
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+from tqdm.auto import tqdm
+
+from grt.config import plain
+from grt.confirm import confirm
+from grt.fileio import write_text_atomic
+from grt.geometry.complexity import angular_deficit_entropy
+from grt.geometry.deform import ShapeDeformer, deformer_options
+from grt.geometry.mesh import check_object_size, load_mesh
+from grt.geometry.prepare import MeshSettings
+from grt.geometry.prepare import describe as describe_preparation
+from grt.geometry.quality import candidate_validity
+from grt.journal import Journal
+from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
+from grt.redteam import RedTeamLoop, episode_seeds
+from grt.runfolder import refuse_unless_run, save_run_config
+from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
+from grt.selectors.base import HandleSet
+from grt.tasks import preflight
+
+log = logging.getLogger("grt.run")
+
+
+def run(cfg: DictConfig) -> dict:
+    """Run (or resume) one red-team run; returns its summary (also written to ``summary.json``)."""
+    run_dir = Path(cfg.resume or cfg.paths.output_dir)
+    if cfg.resume:
+        refuse_unless_run(run_dir)
+    score = ScoreSpec.from_task(cfg.task)  # a bad task.ci fails here, before any simulation
+    floor = nominal_floor(cfg.task)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    scale = cfg.object_scale  # a resumed run's saved config is migrated (grt.runfolder): the key is there
+    mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.mesh))
+    check_object_size(mesh)  # a mesh in millimetres: refused before any file
+    print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
+    preflight(plain(cfg.task), instantiate(cfg.policy), mesh, scale)  # wrong plug/checkpoint: likewise
+    save_run_config(cfg, run_dir)
+    handle_set = _select_handles(cfg, mesh, run_dir)
+    save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
+    deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, **deformer_options(cfg.deformer))
+    _announce_deformer(deformer)
+    optimizer = instantiate(cfg.optimizer)(num_handles=len(handle_set.handles))
+    seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
+    journal = Journal(run_dir / "journal.jsonl")
+    if journal.recovered_truncated_line:
+        log.warning("journal: ignored a truncated last line (an interrupted write)")
+    if len(journal):
+        log.info("resuming %s: %d candidates already in the journal", run_dir, len(journal))
+    logger = instantiate(cfg.logger)
+    evaluator = instantiate(cfg.evaluator)(task=plain(cfg.task), policy=plain(cfg.policy), nominal=mesh,
+                                           progress=False)  # the red-team bar shows progress
+    total = 1 + cfg.budget.population * cfg.budget.iterations
+    folding = FoldingWatch(journal, len(handle_set.handles), cfg.budget.sigma)
+    bar = tqdm(total=total, desc="red-team", unit="cand", initial=len(journal), dynamic_ncols=True)
+    try:
+        logger.start(run_dir, name=run_dir.name, config=plain(cfg))
+        loop = RedTeamLoop(
+            deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
+            complexity=angular_deficit_entropy,
+            on_candidate=lambda rec: _progress(bar, rec, score),
+            on_iteration=lambda t, scores: (
+                logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
+                folding(t)),
+            ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
+            validity=candidate_validity if cfg.deformer.validity else None)
+        result = loop.run()
+        bar.close()
+        confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
+        summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
+                                wall_s=time.perf_counter() - start, confirmation=confirmation)
+        logger.log_summary(summary)
+        logger.log_images({"curve": run_dir / "curve.png", "shapes": run_dir / "shapes.png"})
+    finally:
+        bar.close()
+        evaluator.close()
+        logger.finish()
+    print_summary(summary, run_dir)
+    return summary
+
+
+class FoldingWatch:
+    """Warns once, at the first iteration whose candidates the validity checks all refused, that the
+    search cannot move: a long run should not find that out only at its end."""
+
+    def __init__(self, journal: Journal, handles: int, sigma: float):
+        self.journal, self.handles, self.sigma, self.warned = journal, handles, sigma, False
+
+    def __call__(self, t: int) -> None:
+        made = [r for r in self.journal.records if r["iteration"] == t]
+        if self.warned or not made or not all(r.get("valid") is False for r in made):
+            return
+        self.warned = True
+        log.warning("iteration %d: all %d candidates were implausible (self-intersecting or folded), none "
+                    "simulated: %d handles at budget.sigma=%g fold the object. Lower budget.sigma, cap the "
+                    "displacement (budget.tau) or use fewer handles (selector=heuristic); python -m grt.select "
+                    "object=... selector=... 'probe.sigmas=[...]' counts the candidates each sigma folds",
+                    t, len(made), self.handles, self.sigma)
+
+
+def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, evaluator, seeds: list[int],
+             score: ScoreSpec) -> dict | None:
+    """Re-score the nominal object and the CrashShapes on fresh episodes (``budget.confirm_trials`` > 0)."""
+    trials = int(cfg.budget.confirm_trials)
+    best = crash_records(result.records, cfg.budget.top_k)
+    if trials == 0 or not best:
+        return None
+    meshes = deformer.meshes(np.asarray([r["theta"] for r in best]))
+    with tqdm(total=1 + len(best), desc=f"confirm ({trials} fresh episodes)", unit="shape",
+              dynamic_ncols=True) as bar:
+        return confirm(run_dir, best, meshes, deformer.mesh, evaluator, seeds, cfg.budget.seed, trials,
+                       ci=score.ci, on_evaluated=lambda: bar.update(1))
+
+
+def _select_handles(cfg: DictConfig, mesh, run_dir: Path) -> HandleSet:
+    """Handles and anchors: from the run folder when resuming, else from the configured selector."""
+    path = run_dir / "handles.json"
+    if path.exists():
+        return HandleSet.from_json(path.read_text())
+    selector = instantiate(cfg.selector)
+    handle_set = selector.select(mesh, cfg.task.description)
+    write_text_atomic(path, handle_set.to_json())  # a kill mid-write must not leave a half file to resume from
+    return handle_set
+
+
+def _announce_deformer(deformer: ShapeDeformer) -> None:
+    """Say what the deformation model does to the selected anchors (the smooth method releases some)."""
+    core = deformer.core
+    if core.method != "smooth":
+        return
+    radius_mm = core.region_radius * deformer.meters_per_unit * 1000
+    log.info("deformer: smooth handles, each moves a region of radius %.3g of the diagonal (%.1f mm)",
+             core.radius, radius_mm)
+    if len(core.released_anchors):
+        log.info("deformer: released %d point anchors inside handle regions (they would pin dimples): %s; "
+                 "%d anchors hold the shape", len(core.released_anchors), core.released_anchors.tolist(),
+                 len(core.anchors))
+
+
+def _progress(bar: tqdm, rec: dict, score: ScoreSpec) -> None:
+    bar.update(1)
+    bar.set_postfix(it=rec["iteration"], score=score.fmt(rec["score"], unit=True))
