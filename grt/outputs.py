@@ -139,8 +139,10 @@ def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
 
 
 def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, evaluator, wall_s: float,
-                  confirmation: dict | None = None) -> dict:
+                  confirmation: dict | None = None, score: ScoreSpec | None = None) -> dict:
     """Compute the paper's metrics from the journal and write every artifact of the run.
+
+    ``score``: the run's score spec, as :func:`grt.runner.run` worked it out (from ``cfg.task`` when not given).
 
     ``confirmation`` (:func:`grt.confirm.confirm`) adds ``confirm`` and ``confirmed_final_drop`` to the
     summary and each CrashShape's fresh-episode score to ``shapes.png``.
@@ -149,7 +151,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
 
     _remove_except(run_dir, set(), re.compile(_TEMP))  # temporary files of a write a kill interrupted
     records = result.records
-    score = ScoreSpec.from_task(cfg.task)
+    score = score or ScoreSpec.from_task(cfg.task)
     nominal = next(r for r in records if r["iteration"] == 0)
     summ = metrics.summarize(result.s0, result.iteration_scores)
     explored = [(r["score"], r["entropy"]) for r in records if r["iteration"] >= 1 and r["entropy"] is not None]

@@ -86,7 +86,7 @@ def run(cfg: DictConfig) -> dict:
         bar.close()
         confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
-                                wall_s=time.perf_counter() - start, confirmation=confirmation)
+                                wall_s=time.perf_counter() - start, confirmation=confirmation, score=score)
         logger.log_summary(summary)
         logger.log_images({"curve": run_dir / "curve.png", "shapes": run_dir / "shapes.png"})
     finally:
