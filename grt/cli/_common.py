@@ -132,11 +132,27 @@ def _compose_error(exc: BaseException) -> str | None:
         return unknown_budget_key(key.split(".", 1)[1])
     text = one_line(str(exc))
     if isinstance(exc, OverrideParseException):
-        text = f"cannot parse the override {exc.override!r}: {text}"
+        return quoting_hint(exc.override, text)
     if isinstance(cause, OmegaConfBaseException):
         text += "; " + one_line(str(cause))
     hint = budget_hint(key)
     return f"{text}; {hint}" if hint else text
+
+
+def quoting_hint(override: str, parser_message: str) -> str:
+    """One line for an override Hydra's grammar cannot parse: most often a value (a file path) with a
+    space, a non-ASCII letter or one of ``()[]{},'"``, which it reads only when quoted."""
+    key, sep, value = override.partition("=")
+    if not sep or not value or value[0] in "'\"[{":  # already quoted, a list or a dict: its own syntax error
+        return f"cannot parse the override {override!r}: {parser_message}"
+    if "'" not in value:  # Hydra's single quotes inside the shell's double quotes
+        shell = f'"{key}=\'{value}\'"' if not any(c in value for c in '"$`\\') else \
+            "'" + f"{key}=\"{value}\"" + "'"
+    else:  # Hydra's double quotes inside the shell's single quotes ('\'' is the shell's quote)
+        shell = "'" + f'{key}="{value}"'.replace("'", "'\\''") + "'"
+    return (f"cannot parse the override {override!r} ({parser_message.split(';')[0]}): a value with spaces, "
+            f"non-ASCII letters or any of ()[]{{}},'\" must be quoted for Hydra, inside the shell's quotes: "
+            f"{shell}")
 
 
 def _setup_error(exc: OSError) -> OutputError | None:
