@@ -52,7 +52,7 @@ def run(cfg: DictConfig) -> dict:
     mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.mesh))
     check_object_size(mesh)  # a mesh in millimetres: refused before any file
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
-    preflight(plain(cfg.task), instantiate(cfg.policy), mesh, scale)  # wrong plug/checkpoint: likewise
+    preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # wrong plug, policy kind or checkpoint: likewise
     save_run_config(cfg, run_dir)
     handle_set = _select_handles(cfg, mesh, run_dir)
     save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)

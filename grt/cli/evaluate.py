@@ -48,7 +48,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.get("mesh")))
     check_object_size(mesh)  # a mesh in millimetres: refused before any simulation
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
-    preflight(plain(cfg.task), instantiate(cfg.policy), mesh, scale)
+    preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # a policy of the wrong kind: refused first
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None

@@ -45,8 +45,8 @@ class ManualSelector(HandleSelector):
         max_per_region: the most vertices taken from one region (``None``: all).
 
     Raises:
-        SelectorError: no handles given at all, or an unreadable ``file`` (when built); (at ``select``) a
-            region with no vertex, an index out of range, or handles and anchors overlap.
+        SelectorError: an unreadable ``file`` (when built); (at ``select``) no handles, a region with no
+            vertex, an index out of range, or handles and anchors overlap.
     """
 
     def __init__(self, handles: Sequence[int] = (), anchors: Sequence[int] = (),
@@ -62,8 +62,6 @@ class ManualSelector(HandleSelector):
                 raise SelectorError(f"selector.file={file}: unknown keys {sorted(unknown)}; expected {FILE_KEYS}")
             for key in FILE_KEYS:
                 spec[key] += list(data.get(key, []))
-        if not spec["handles"] and not spec["handle_regions"]:
-            raise SelectorError(NO_HANDLES)
         self.spec = spec
         self.file = file
         self.far_anchors = max(int(far_anchors), MIN_ANCHORS)
