@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hydra.errors import ConfigCompositionException, HydraException, OverrideParseException
+from omegaconf import OmegaConf
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
 import grt.runfolder  # noqa: F401 - registers the resume_or resolver of hydra.run.dir before composition
@@ -30,6 +31,31 @@ from grt.fileio import write_bytes_atomic
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
 _NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
+
+
+HIDDEN_GROUPS = ("paths",)  # config groups that are no user choice, left out of --help (with hydra/*)
+
+
+def config_groups() -> str:
+    """The ``--help`` lines of the running app's config groups (resolver ``grt_config_groups``, used by
+    ``conf/hydra/help/grt.yaml``): each group this command composes, its options (the YAML files: a
+    schema registered in code is not an option) and the one chosen; ``paths`` and ``hydra/*`` are hidden."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return ""
+    lines = []
+    for group, chosen in sorted(HydraConfig.get().runtime.choices.items()):
+        if group == "hydra" or group.startswith("hydra/") or group in HIDDEN_GROUPS:
+            continue
+        options = sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+        if options:
+            lines.append(f"{group}: {', '.join(options)}  (now: {chosen if chosen is not None else 'none'})")
+    return "\n".join(lines)
+
+
+if not OmegaConf.has_resolver("grt_config_groups"):
+    OmegaConf.register_new_resolver("grt_config_groups", config_groups)
 
 
 def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:
