@@ -154,7 +154,7 @@ def _announce_deformer(deformer: ShapeDeformer) -> None:
              core.radius, radius_mm)
     if len(core.released_anchors):
         some = core.released_anchors.tolist()
-        listed = f"{some[:8]}{' ...' if len(some) > 8 else ''}"  # all of them in summary.json (deformer)
+        listed = ", ".join(map(str, some[:5])) + (", ..." if len(some) > 5 else "")  # all: summary.json
         log.info("deformer: released %d point anchors inside handle regions (they would pin dimples): %s; "
                  "%d anchors hold the shape", len(some), listed, len(core.anchors))
 
