@@ -128,6 +128,8 @@ def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, ev
     if trials == 0 or not best:
         return None
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best]))
+    if hasattr(evaluator, "start"):
+        evaluator.start()  # a resume that only confirms starts its workers here (says so; silent if up)
     with progress(1 + len(best), f"confirm ({trials} fresh episodes)", "shape") as bar:
         return confirm(run_dir, best, meshes, deformer.mesh, evaluator, seeds, cfg.budget.seed, trials,
                        ci=score.ci, on_evaluated=lambda: bar.update(1))

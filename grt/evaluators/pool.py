@@ -269,6 +269,11 @@ class WorkerPool:
             self._assign(pending)
             self._poll(on_trial, pending, crashes)
 
+    @property
+    def all_ready(self) -> bool:
+        """Whether every worker is running and has built its session."""
+        return len(self.workers) == self.num_workers and all(w.ready for w in self.workers)
+
     def wait_ready(self) -> None:
         """Start the workers and return once every one has built its session (what a progress bar's
         clock should not count).

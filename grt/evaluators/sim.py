@@ -79,6 +79,8 @@ class SimEvaluator(Evaluator):
         first keeps that time out of the progress bar's rate and ETA; :meth:`evaluate` starts the workers
         itself otherwise.
         """
+        if self.pool.all_ready:  # already up: nothing to wait for, nothing to say
+            return 0.0
         begin = time.perf_counter()
         if say is not None:
             say(f"starting {self.workers} simulator worker{'s' * (self.workers != 1)} (each builds its own "
