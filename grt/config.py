@@ -145,9 +145,17 @@ def validate(cfg: DictConfig) -> DictConfig:
 
 def _check_optimizer(node: DictConfig) -> None:
     """Build the configured optimizer once (cheap, no simulation): its own range checks run now."""
-    from hydra.utils import instantiate
+    from hydra.utils import get_class, instantiate
 
     name = str(node._target_).rsplit(".", 1)[-1]
+    least = getattr(get_class(str(node._target_)), "min_population", 1)
+    population = node.get("population")
+    if isinstance(population, int) and population < least:  # one line naming the setting, not the library's
+        module = str(node._target_).rsplit(".", 2)[-2]
+        why = getattr(get_class(str(node._target_)), "min_population_reason", "")
+        raise ConfigError(f"budget.population={population} is too small for optimizer={module}: {name} needs a "
+                          f"population of at least {least}{f' ({why})' if why else ''}; set "
+                          f"budget.population={least} or more")
     try:
         instantiate(node)(num_handles=1)  # the optimizer groups are partials: num_handles comes at run time
     except (ValueError, TypeError) as exc:

@@ -10,6 +10,10 @@ sorted, no spaces, without ``sha256``). An edited score, a removed or reordered 
 line anywhere is refused with its line number: the run's results would otherwise be rewritten from
 numbers no simulation produced. Lines written before checksums existed load unchecked (a warning),
 so old run folders keep working; once a checked line appears, every later line must be checked.
+
+Lines are strict JSON (any JSON reader takes them): a NaN score (an implausible candidate, not
+simulated) is written ``null`` and the line's ``nonfinite`` key says where, so a reload gives the NaN
+back; lines of older journals with bare ``NaN`` still load and verify.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 from pathlib import Path
 
@@ -44,6 +49,39 @@ def chain_checksum(previous: str, record: dict) -> str:
     body = {k: v for k, v in record.items() if k != CHECKSUM}
     canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=True)
     return hashlib.sha256(f"{previous}\n{canonical}".encode()).hexdigest()
+
+
+NONFINITE = "nonfinite"  # where a line's NaN/inf numbers were: [[path, "nan" | "inf" | "-inf"], ...]
+
+
+def strict(record: dict) -> dict:
+    """``record`` as strict JSON can hold it: every NaN/inf number becomes ``null``, and the key
+    :data:`NONFINITE` lists where they were (its path of keys and list indices, and the value as text), so
+    :func:`restore` gives the record back exactly. A record of finite numbers is returned as it is."""
+    found: list = []
+
+    def walk(value, path):
+        if isinstance(value, float) and not math.isfinite(value):
+            found.append([path, "nan" if value != value else ("inf" if value > 0 else "-inf")])
+            return None
+        if isinstance(value, dict):
+            return {k: walk(v, [*path, k]) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [walk(v, [*path, i]) for i, v in enumerate(value)]
+        return value
+
+    clean = walk(record, [])
+    return {**clean, NONFINITE: found} if found else record
+
+
+def restore(record: dict) -> dict:
+    """The record :func:`strict` was given: its NaN/inf numbers back where :data:`NONFINITE` says."""
+    for path, text in record.pop(NONFINITE, None) or []:
+        node = record
+        for key in path[:-1]:
+            node = node[key]
+        node[path[-1]] = float(text)
+    return record
 
 
 class Journal:
@@ -100,7 +138,7 @@ class Journal:
             checked = checked or stored is not None
             self.unchecked_lines += stored is None
             self._head = expected
-            self._add(rec)
+            self._add(restore(rec))
         if self.unchecked_lines:
             log.warning("%s: %d line(s) written before journals had checksums; loaded unchecked",
                         self.path, self.unchecked_lines)
@@ -124,10 +162,14 @@ class Journal:
             raise ValueError(f"journal record lacks {missing}")
         if CHECKSUM in record:
             raise ValueError(f"journal record must not carry {CHECKSUM!r}: the journal computes it")
-        # Checksummed as it will read back (tuples as lists, keys as strings), so a reload verifies.
-        as_read = json.loads(json.dumps(record, allow_nan=True))
+        if NONFINITE in record:
+            raise ValueError(f"journal record must not carry {NONFINITE!r}: the journal writes it")
+        # Strict JSON (NaN written as null, where it was noted), checksummed as it will read back (tuples
+        # as lists, keys as strings), so a reload verifies; lines of older journals hold bare NaN and load.
+        on_disk = strict(record)
+        as_read = json.loads(json.dumps(on_disk, allow_nan=False))
         checksum = chain_checksum(self._head, as_read)
-        line = json.dumps({**record, CHECKSUM: checksum}, separators=(",", ":"), allow_nan=True) + "\n"
+        line = json.dumps({**on_disk, CHECKSUM: checksum}, separators=(",", ":"), allow_nan=False) + "\n"
         with open(self.path, "a", encoding="utf-8") as f:
             f.write(line)
             f.flush()

@@ -20,6 +20,7 @@ from omegaconf import DictConfig
 
 from grt import metrics
 from grt.config import object_name
+from grt.console import console as wide_console
 from grt.fileio import atomic_path, write_text_atomic
 from grt.scores import ScoreSpec
 
@@ -245,7 +246,6 @@ def _choice(cfg: DictConfig, group: str) -> str:
 
 def print_summary(summary: dict, run_dir: Path) -> None:
     """One screen: the paper's metrics and where the CrashShapes and pictures are."""
-    from rich.console import Console
     from rich.table import Table
 
     score = ScoreSpec.from_summary(summary)
@@ -260,7 +260,7 @@ def print_summary(summary: dict, run_dir: Path) -> None:
                   f"{summary['iter_at_50']}{'' if summary['reached_50'] else ' (not reached)'}",
                   fmt(summary["auc"]), fmt(summary["delta_complexity"]), str(summary["evaluations"]),
                   fmt(summary["wall_s"], "{:.0f}"))
-    console = Console()
+    console = wide_console()  # in a log: as wide as the table and the paths (grt.console)
     console.print(table)
     invalid, tried = summary.get("invalid_candidates", 0), summary["evaluations"] - 1
     if tried and summary.get("validity_checked") is False:

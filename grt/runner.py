@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 from hydra.utils import instantiate
 from omegaconf import DictConfig
-from tqdm.auto import tqdm
 
 from grt.config import plain
 from grt.confirm import confirm
+from grt.console import progress
 from grt.fileio import write_text_atomic
 from grt.geometry.complexity import angular_deficit_entropy
 from grt.geometry.deform import ShapeDeformer, deformer_options
@@ -52,7 +52,7 @@ def run(cfg: DictConfig) -> dict:
     mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.mesh))
     check_object_size(mesh)  # a mesh in millimetres: refused before any file
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
-    preflight(plain(cfg.task), instantiate(cfg.policy), mesh, scale)  # wrong plug/checkpoint: likewise
+    preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # wrong plug, policy kind or checkpoint: likewise
     save_run_config(cfg, run_dir)
     handle_set = _select_handles(cfg, mesh, run_dir)
     save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
@@ -70,9 +70,12 @@ def run(cfg: DictConfig) -> dict:
                                            progress=False)  # the red-team bar shows progress
     total = 1 + cfg.budget.population * cfg.budget.iterations
     folding = FoldingWatch(journal, len(handle_set.handles), cfg.budget.sigma)
-    bar = tqdm(total=total, desc="red-team", unit="cand", initial=len(journal), dynamic_ncols=True)
+    bar = None
     try:
         logger.start(run_dir, name=run_dir.name, config=plain(cfg))
+        if len(journal) < total and hasattr(evaluator, "start"):
+            evaluator.start()  # one line, then the workers' start-up, outside the bar's rate and ETA
+        bar = progress(total, "red-team", "cand", initial=len(journal))
         loop = RedTeamLoop(
             deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
             complexity=angular_deficit_entropy,
@@ -90,7 +93,8 @@ def run(cfg: DictConfig) -> dict:
         logger.log_summary(summary)
         logger.log_images({"curve": run_dir / "curve.png", "shapes": run_dir / "shapes.png"})
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
         evaluator.close()
         logger.finish()
     print_summary(summary, run_dir)
@@ -124,8 +128,9 @@ def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, ev
     if trials == 0 or not best:
         return None
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best]))
-    with tqdm(total=1 + len(best), desc=f"confirm ({trials} fresh episodes)", unit="shape",
-              dynamic_ncols=True) as bar:
+    if hasattr(evaluator, "start"):
+        evaluator.start()  # a resume that only confirms starts its workers here (says so; silent if up)
+    with progress(1 + len(best), f"confirm ({trials} fresh episodes)", "shape") as bar:
         return confirm(run_dir, best, meshes, deformer.mesh, evaluator, seeds, cfg.budget.seed, trials,
                        ci=score.ci, on_evaluated=lambda: bar.update(1))
 
@@ -150,11 +155,12 @@ def _announce_deformer(deformer: ShapeDeformer) -> None:
     log.info("deformer: smooth handles, each moves a region of radius %.3g of the diagonal (%.1f mm)",
              core.radius, radius_mm)
     if len(core.released_anchors):
+        some = core.released_anchors.tolist()
+        listed = ", ".join(map(str, some[:5])) + (", ..." if len(some) > 5 else "")  # all: summary.json
         log.info("deformer: released %d point anchors inside handle regions (they would pin dimples): %s; "
-                 "%d anchors hold the shape", len(core.released_anchors), core.released_anchors.tolist(),
-                 len(core.anchors))
+                 "%d anchors hold the shape", len(some), listed, len(core.anchors))
 
 
-def _progress(bar: tqdm, rec: dict, score: ScoreSpec) -> None:
+def _progress(bar, rec: dict, score: ScoreSpec) -> None:
     bar.update(1)
     bar.set_postfix(it=rec["iteration"], score=score.fmt(rec["score"], unit=True))

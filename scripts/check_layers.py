@@ -28,7 +28,7 @@ PACKAGE = "grt"
 # longest entry that is itself or one of its parent packages; ``python -m`` shims (``__main__`` modules)
 # and the command-line apps sit on top.
 LAYERS: dict[str, int] = {
-    "grt": 0, "grt.errors": 0, "grt.fileio": 0,
+    "grt": 0, "grt.errors": 0, "grt.fileio": 0, "grt.console": 0,
     "grt.objects": 1,
     "grt.geometry": 2,
     "grt.optimizers": 3, "grt.metrics": 3, "grt.scores": 3,

@@ -63,7 +63,7 @@ def test_interpolated_value_of_wrong_type_is_refused():
 
 
 def test_optimizer_refusing_the_budget_is_caught_before_simulation():
-    with pytest.raises(ConfigError, match="CMAESOptimizer refuses .* must be >=2"):
+    with pytest.raises(ConfigError, match=r"budget.population=1 is too small .* at least 2"):
         validate(compose_run(["optimizer=cma_es", "budget.population=1"]))
     validate(compose_run(["optimizer=cma_es", "budget.population=2"]))
 

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hydra.errors import ConfigCompositionException, HydraException, OverrideParseException
+from omegaconf import OmegaConf
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
 import grt.runfolder  # noqa: F401 - registers the resume_or resolver of hydra.run.dir before composition
@@ -30,6 +31,31 @@ from grt.fileio import write_bytes_atomic
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
 _NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
+
+
+HIDDEN_GROUPS = ("paths",)  # config groups that are no user choice, left out of --help (with hydra/*)
+
+
+def config_groups() -> str:
+    """The ``--help`` lines of the running app's config groups (resolver ``grt_config_groups``, used by
+    ``conf/hydra/help/grt.yaml``): each group this command composes, its options (the YAML files: a
+    schema registered in code is not an option) and the one chosen; ``paths`` and ``hydra/*`` are hidden."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return ""
+    lines = []
+    for group, chosen in sorted(HydraConfig.get().runtime.choices.items()):
+        if group == "hydra" or group.startswith("hydra/") or group in HIDDEN_GROUPS:
+            continue
+        options = sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+        if options:
+            lines.append(f"{group}: {', '.join(options)}  (now: {chosen if chosen is not None else 'none'})")
+    return "\n".join(lines)
+
+
+if not OmegaConf.has_resolver("grt_config_groups"):
+    OmegaConf.register_new_resolver("grt_config_groups", config_groups)
 
 
 def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:
@@ -132,11 +158,27 @@ def _compose_error(exc: BaseException) -> str | None:
         return unknown_budget_key(key.split(".", 1)[1])
     text = one_line(str(exc))
     if isinstance(exc, OverrideParseException):
-        text = f"cannot parse the override {exc.override!r}: {text}"
+        return quoting_hint(exc.override, text)
     if isinstance(cause, OmegaConfBaseException):
         text += "; " + one_line(str(cause))
     hint = budget_hint(key)
     return f"{text}; {hint}" if hint else text
+
+
+def quoting_hint(override: str, parser_message: str) -> str:
+    """One line for an override Hydra's grammar cannot parse: most often a value (a file path) with a
+    space, a non-ASCII letter or one of ``()[]{},'"``, which it reads only when quoted."""
+    key, sep, value = override.partition("=")
+    if not sep or not value or value[0] in "'\"[{":  # already quoted, a list or a dict: its own syntax error
+        return f"cannot parse the override {override!r}: {parser_message}"
+    if "'" not in value:  # Hydra's single quotes inside the shell's double quotes
+        shell = f'"{key}=\'{value}\'"' if not any(c in value for c in '"$`\\') else \
+            "'" + f"{key}=\"{value}\"" + "'"
+    else:  # Hydra's double quotes inside the shell's single quotes ('\'' is the shell's quote)
+        shell = "'" + f'{key}="{value}"'.replace("'", "'\\''") + "'"
+    return (f"cannot parse the override {override!r} ({parser_message.split(';')[0]}): a value with spaces, "
+            f"non-ASCII letters or any of ()[]{{}},'\" must be quoted for Hydra, inside the shell's quotes: "
+            f"{shell}")
 
 
 def _setup_error(exc: OSError) -> OutputError | None:

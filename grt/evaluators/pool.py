@@ -267,15 +267,35 @@ class WorkerPool:
         pending, crashes = deque(jobs), {}
         while pending or any(w.job is not None for w in self.workers):
             self._assign(pending)
-            ready = wait([w.conn for w in self.workers] + [w.proc.sentinel for w in self.workers], timeout=1.0)
-            for w in list(self.workers):
-                if w.conn in ready or w.proc.sentinel in ready:
-                    self._drain(w, on_trial, pending, crashes)
-                elif self._timed_out(w):
-                    log.warning("worker %d silent for too long: killing it", w.proc.pid)
-                    w.proc.kill()
-                    w.proc.join()
-                    self._replace(w, on_trial, pending, crashes, "timed out (hung)")
+            self._poll(on_trial, pending, crashes)
+
+    @property
+    def all_ready(self) -> bool:
+        """Whether every worker is running and has built its session."""
+        return len(self.workers) == self.num_workers and all(w.ready for w in self.workers)
+
+    def wait_ready(self) -> None:
+        """Start the workers and return once every one has built its session (what a progress bar's
+        clock should not count).
+
+        Raises:
+            RuntimeError: a worker cannot build its task session.
+        """
+        self.start()
+        while not all(w.ready for w in self.workers):
+            self._poll(lambda *_: None, deque(), {})
+
+    def _poll(self, on_trial, pending: deque, crashes: dict) -> None:
+        """Wait up to a second for messages and handle them; kill and replace a worker silent too long."""
+        ready = wait([w.conn for w in self.workers] + [w.proc.sentinel for w in self.workers], timeout=1.0)
+        for w in list(self.workers):
+            if w.conn in ready or w.proc.sentinel in ready:
+                self._drain(w, on_trial, pending, crashes)
+            elif self._timed_out(w):
+                log.warning("worker %d silent for too long: killing it", w.proc.pid)
+                w.proc.kill()
+                w.proc.join()
+                self._replace(w, on_trial, pending, crashes, "timed out (hung)")
 
     def _assign(self, pending: deque) -> None:
         for w in self.workers:

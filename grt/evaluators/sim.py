@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from tqdm import tqdm
 
+from grt.console import progress as progress_bar
 from grt.evaluators.base import CandidateResult, Evaluator
 from grt.evaluators.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
 from grt.evaluators.pool import Job, WorkerPool, sim_error
@@ -46,7 +46,7 @@ class SimEvaluator(Evaluator):
         trial_timeout: seconds a trial may run before its worker is deemed hung and restarted.
         start_method: ``"spawn"`` or ``"forkserver"``.
         threads: CPU threads per worker (BLAS/OpenMP, torch, lavapipe); ``None``: library defaults.
-        progress: show a tqdm progress bar.
+        progress: show the trials' progress (a tqdm bar on a terminal, plain lines in a log: :mod:`grt.console`).
         render_dir: write one picture per trial there when the session has ``render(path)``.
     """
 
@@ -68,8 +68,29 @@ class SimEvaluator(Evaluator):
         self.workers, self.chunk_size, self.progress = int(workers), chunk_size, progress
         self.render_dir = str(render_dir) if render_dir else None
         self.collision_s = 0.0
+        self.run_s = 0.0  # seconds of the last evaluate's trials (the time its progress bar measures)
 
     # ------------------------------------------------------------------------------- interface
+    def start(self, say=lambda line: print(line, flush=True)) -> float:
+        """Start the simulator workers and wait until each has built its session; returns the seconds.
+
+        ``say`` gets one line before (``starting N simulator workers ...``) and one after, so a command
+        shows why nothing moves for the 10-30 s a simulator takes to start (``None``: silent). Starting
+        first keeps that time out of the progress bar's rate and ETA; :meth:`evaluate` starts the workers
+        itself otherwise.
+        """
+        if self.pool.all_ready:  # already up: nothing to wait for, nothing to say
+            return 0.0
+        begin = time.perf_counter()
+        if say is not None:
+            say(f"starting {self.workers} simulator worker{'s' * (self.workers != 1)} (each builds its own "
+                "simulator and policy; this takes a while) ...")
+        self.pool.wait_ready()
+        seconds = time.perf_counter() - begin
+        if say is not None:
+            say(f"{self.workers} simulator worker{'s' * (self.workers != 1)} ready in {seconds:.1f} s")
+        return seconds
+
     def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int],
                  parts: list[list[np.ndarray]] | None = None, policy: dict | None = None) -> list[CandidateResult]:
         """Score every mesh on the same seeds; see :meth:`grt.evaluators.base.Evaluator.evaluate`.
@@ -101,9 +122,11 @@ class SimEvaluator(Evaluator):
             if bar is not None:
                 bar.update(1)
 
+        start = time.perf_counter()
         try:
             self.pool.run(jobs, on_trial)
         finally:
+            self.run_s = time.perf_counter() - start
             if bar is not None:
                 bar.close()
         return [CandidateResult.from_trials([t[s] for s in seeds], wall[i],
@@ -150,4 +173,4 @@ class SimEvaluator(Evaluator):
     def _progress_bar(self, total: int):
         if not self.progress or not total:
             return None
-        return tqdm(total=total, desc="trials", unit="trial", leave=False)
+        return progress_bar(total, "trials", "trial", leave=False)

@@ -64,6 +64,8 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str | None = No
         mesh = _read_file(path)
         source = str(path)
         read_as = len(mesh.vertices)
+    elif path.is_dir():
+        raise MeshError(_directory_message(text, path))
     elif path.suffix.lower() in MESH_SUFFIXES or "/" in text:
         raise MeshError(f"mesh file not found: {text!r}. Give an existing path or one of the built-in "
                         f"objects: {', '.join(list_objects())}.")
@@ -86,6 +88,18 @@ def load_mesh(spec: str | Path, repair: bool = True, components: str | None = No
     prep.update(source=source, scale=float(scale))
     prep["timings_s"]["total"] = round(time.perf_counter() - start, 4)  # reading the file included
     return mesh
+
+
+def _directory_message(text: str, path: Path) -> str:
+    """The one line for a folder given as the object: say it is one, and name mesh files in it."""
+    try:
+        found = sorted(p.name for p in path.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
+    except OSError:
+        found = []
+    inside = (f"; it holds {', '.join(found[:3])}{' ...' if len(found) > 3 else ''}: give one of them, e.g. "
+              f"object={path / found[0]}") if found else "; give a mesh file (one of " + \
+        f"{', '.join(sorted(MESH_SUFFIXES))}) or a built-in object's name"
+    return f"object={text} is a directory, not a mesh file{inside}"
 
 
 def prepare_report(spec: str | Path, scale: float = 1.0, **settings) -> dict:

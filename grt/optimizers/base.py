@@ -26,12 +26,19 @@ class Optimizer(ABC):
         mu0: mean of the initial Gaussian (unit-cube units; the paper uses a zero mean).
     """
 
+    #: the smallest population the method works with (``grt.config.validate`` checks it before a run).
+    min_population: int = 1
+    #: why a smaller population does not work (said when one is refused).
+    min_population_reason: str = ""
+
     def __init__(self, num_handles: int, population: int = 10, sigma: float = 0.001, seed: int = 0,
                  mu0: float = 0.0):
         if num_handles < 1:
             raise ValueError(f"num_handles must be >= 1, got {num_handles}")
-        if population < 1:
-            raise ValueError(f"population must be >= 1, got {population}")
+        if population < self.min_population:
+            why = f" ({self.min_population_reason})" if self.min_population_reason else ""
+            raise ValueError(f"{type(self).__name__} needs a population of at least {self.min_population}{why}, "
+                             f"got {population}")
         if not sigma > 0:
             raise ValueError(f"sigma must be > 0 (unit-cube units), got {sigma}")
         self.num_handles, self.population = int(num_handles), int(population)

@@ -14,6 +14,9 @@ class CMAESOptimizer(Optimizer):
         num_handles, population, sigma, seed, mu0: see :class:`~grt.optimizers.base.Optimizer`.
     """
 
+    min_population = 2
+    min_population_reason = "it adapts its search from the ranking of each iteration's candidates"
+
     def __init__(self, num_handles: int, population: int = 10, sigma: float = 0.001, seed: int = 0,
                  mu0: float = 0.0):
         super().__init__(num_handles, population, sigma, seed, mu0)

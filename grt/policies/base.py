@@ -166,3 +166,31 @@ class GraspStepPolicy(ABC):
     def act(self, obs: dict) -> np.ndarray | None:
         """A ``pd_joint_pos`` action (8,): 7 arm joint targets (rad) + gripper in [-1 closed, 1 open];
         ``None`` when done (the task then lifts and shakes)."""
+
+
+#: the kinds of policy a task can drive, in words (:func:`policy_kind`; a task session names those it
+#: runs in ``TaskSession.policy_kinds``, and :func:`grt.tasks.preflight` refuses another kind).
+POLICY_KINDS = {
+    "grasp_planner": "a grasp planner (one point cloud in, ranked grasps out: GraspPolicy.plan)",
+    "grasp_step": "a step-by-step grasp policy (GraspStepPolicy: one observation in, one arm action out)",
+    "closed_loop": "a closed-loop policy (BatchedPolicy: observation groups in, actions out, every control step)",
+}
+
+
+def policy_kind(cls: type) -> str | None:
+    """The kind of a policy class (a key of :data:`POLICY_KINDS`), or ``None`` when it is none of them.
+
+    A subclass of one of the interfaces is of its kind; a class that subclasses none is taken by what it
+    has, as the tasks call it: ``plan`` (a grasp planner) or ``act`` (a closed-loop policy).
+    """
+    if issubclass(cls, GraspStepPolicy):
+        return "grasp_step"
+    if issubclass(cls, GraspPolicy):
+        return "grasp_planner"
+    if issubclass(cls, BatchedPolicy):
+        return "closed_loop"
+    if callable(getattr(cls, "plan", None)):
+        return "grasp_planner"
+    if callable(getattr(cls, "act", None)):
+        return "closed_loop"
+    return None

@@ -21,7 +21,14 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from grt.errors import UserError
+
 MIN_ANCHORS = 3
+
+
+class SelectorError(UserError):
+    """Handles or anchors the user gave that cannot be used (none, a region with no vertex, a bad file);
+    the message names the setting and the fix."""
 
 
 @dataclass(frozen=True)

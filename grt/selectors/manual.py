@@ -14,10 +14,13 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from grt.selectors.base import MIN_ANCHORS, HandleSelector, HandleSet, farthest_vertices
+from grt.selectors.base import MIN_ANCHORS, HandleSelector, HandleSet, SelectorError, farthest_vertices
 from grt.selectors.regions import RegionSpec, region_vertices
 
 FILE_KEYS = ("handles", "anchors", "handle_regions", "anchor_regions")
+NO_HANDLES = ("selector=manual needs handles: give vertex indices (selector.handles='[12,40]'), regions "
+              "(selector.handle_regions='[mug:handle]' or boxes/spheres in meters) or a file "
+              "(selector.file=handles.json); a task may give defaults (task.manual: insertion, drawer)")
 
 
 class ManualSelector(HandleSelector):
@@ -42,7 +45,8 @@ class ManualSelector(HandleSelector):
         max_per_region: the most vertices taken from one region (``None``: all).
 
     Raises:
-        ValueError: (at ``select``) no handles, an index out of range, or handles and anchors overlap.
+        SelectorError: an unreadable ``file`` (when built); (at ``select``) no handles, a region with no
+            vertex, an index out of range, or handles and anchors overlap.
     """
 
     def __init__(self, handles: Sequence[int] = (), anchors: Sequence[int] = (),
@@ -51,11 +55,11 @@ class ManualSelector(HandleSelector):
         spec = {"handles": list(handles), "anchors": list(anchors),
                 "handle_regions": list(handle_regions), "anchor_regions": list(anchor_regions)}
         if file:
-            data = json.loads(Path(file).expanduser().read_text())
+            data = _read_file(file)
             unknown = set(data) - set(FILE_KEYS) - {"notes", "handle_positions", "anchor_positions",
                                                    "object", "task", "selector"}
             if unknown:
-                raise ValueError(f"{file}: unknown keys {sorted(unknown)}; expected {FILE_KEYS}")
+                raise SelectorError(f"selector.file={file}: unknown keys {sorted(unknown)}; expected {FILE_KEYS}")
             for key in FILE_KEYS:
                 spec[key] += list(data.get(key, []))
         self.spec = spec
@@ -68,7 +72,7 @@ class ManualSelector(HandleSelector):
         for spec in specs:
             idx = region_vertices(vertices, [spec])
             if len(idx) == 0:
-                raise ValueError(f"region {spec!r} contains no vertex of the mesh (check its units: meters)")
+                raise SelectorError(f"region {spec!r} contains no vertex of the mesh (check its units: meters)")
             if thin and self.max_per_region is not None and len(idx) > self.max_per_region:
                 local = farthest_vertices(vertices[idx], [int(np.argmin(idx))], self.max_per_region, [])
                 idx = idx[local]
@@ -81,8 +85,7 @@ class ManualSelector(HandleSelector):
         handles = np.unique(np.concatenate([np.asarray(self.spec["handles"], np.int64),
                                             self._regions(vertices, self.spec["handle_regions"])]))
         if len(handles) == 0:
-            raise ValueError("manual selector: no handles; set selector.handles or selector.handle_regions "
-                             "(or selector.file)")
+            raise SelectorError(NO_HANDLES)
         anchors = np.unique(np.concatenate([np.asarray(self.spec["anchors"], np.int64),
                                             self._regions(vertices, self.spec["anchor_regions"], thin=False)]))
         source = "given"
@@ -90,4 +93,24 @@ class ManualSelector(HandleSelector):
             anchors = np.sort(farthest_vertices(vertices, handles, self.far_anchors, handles))
             source = f"{len(anchors)} vertices farthest from the handles"
         notes = {"selector": "manual", "task": task, "anchors_from": source, "file": self.file}
-        return HandleSet(handles, anchors, notes).check(len(vertices))
+        try:
+            return HandleSet(handles, anchors, notes).check(len(vertices))
+        except ValueError as exc:  # indices the user gave: out of range, or a vertex both handle and anchor
+            raise SelectorError(f"selector=manual: {exc}; fix selector.handles / selector.anchors "
+                                "(or their regions)") from None
+
+
+def _read_file(file: str) -> dict:
+    """The JSON object of ``selector.file``, or one line saying why it cannot be used."""
+    path = Path(file).expanduser()
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise SelectorError(f"selector.file={file}: {exc.strerror or exc}; give an existing JSON file (a "
+                            "handles.json written by python -m grt.select works)") from None
+    except ValueError as exc:
+        raise SelectorError(f"selector.file={file} is not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise SelectorError(f"selector.file={file} holds a JSON {type(data).__name__}, not an object with "
+                            f"the keys {', '.join(FILE_KEYS)}")
+    return data

@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 
 from grt.objects import object_regions
+from grt.selectors.base import SelectorError
 
 RegionSpec = Mapping | str
 
@@ -23,10 +24,10 @@ def named_region_box(spec: str) -> np.ndarray:
     """The ``(2, 3)`` box (meters) of a named built-in region ``"OBJECT:REGION"``."""
     obj, sep, name = spec.partition(":")
     if not sep or not obj or not name:
-        raise ValueError(f"region {spec!r}: a named region is written 'OBJECT:REGION', e.g. 'mug:handle'")
+        raise SelectorError(f"region {spec!r}: a named region is written 'OBJECT:REGION', e.g. 'mug:handle'")
     regions = object_regions(obj)
     if name not in regions:
-        raise ValueError(f"object {obj!r} has no region {name!r}; its regions are: {', '.join(sorted(regions))}")
+        raise SelectorError(f"object {obj!r} has no region {name!r}; its regions are: {', '.join(sorted(regions))}")
     region = regions[name]
     return np.asarray(getattr(region, "box", region), dtype=np.float64).reshape(2, 3)
 
@@ -51,7 +52,7 @@ def region_mask(points: np.ndarray, spec: RegionSpec) -> np.ndarray:
         center = np.asarray(ball["center"], dtype=np.float64).reshape(3)
         return np.linalg.norm(points - center, axis=1) <= float(ball["radius"])
     else:
-        raise ValueError(f"unknown region spec {spec!r}: use {{'box': [[x0,y0,z0],[x1,y1,z1]]}}, "
+        raise SelectorError(f"unknown region spec {spec!r}: use {{'box': [[x0,y0,z0],[x1,y1,z1]]}}, "
                          "{'sphere': {'center': [x,y,z], 'radius': r}} or 'OBJECT:REGION'")
     lo, hi = box.min(0), box.max(0)
     return np.all((points >= lo) & (points <= hi), axis=1)

@@ -9,26 +9,29 @@ strings so that importing ``grt.tasks`` does not start the simulator.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
-from hydra.utils import get_class
+from hydra.utils import get_class, instantiate
 from omegaconf import OmegaConf
 
 from grt.objects import list_objects
+from grt.policies.base import POLICY_KINDS, policy_kind
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TaskSession, TrialOutcome
 
 TASK_CONF = Path(__file__).resolve().parents[2] / "conf" / "task"
+POLICY_CONF = TASK_CONF.parent / "policy"
 
 
-def _session_target(path: Path) -> str | None:
-    """``session._target_`` of a task YAML, or of the task it extends (``defaults: [grasp, _self_]``)."""
+def _session_target(path: Path, key: str = "session._target_") -> str | None:
+    """``session._target_`` (or ``key``) of a task YAML, or of the one it extends (``defaults: [grasp, _self_]``)."""
     cfg = OmegaConf.load(path)
-    target = OmegaConf.select(cfg, "session._target_")
+    target = OmegaConf.select(cfg, key)
     if target is not None:
         return str(target)
     for base in cfg.get("defaults") or []:
         if isinstance(base, str) and base != "_self_" and (path.parent / f"{base}.yaml").is_file():
-            found = _session_target(path.parent / f"{base}.yaml")
+            found = _session_target(path.parent / f"{base}.yaml", key)
             if found is not None:
                 return found
     return None
@@ -59,20 +62,89 @@ def get_task(name: str) -> type[TaskSession]:
     return get_class(TASKS[name])
 
 
+class PolicyKindError(TaskInputError):
+    """A policy of a kind the task cannot run (a grasp planner on a closed-loop task, or the reverse)."""
+
+
+def check_policy_kind(task: dict, policy_class: type, name: str | None = None) -> None:
+    """Refuse a policy whose kind (:func:`grt.policies.base.policy_kind`) the task's session cannot run.
+
+    Args:
+        task: the task config as a plain dict (``name``, ``session``).
+        policy_class: the policy's class (not instantiated: a network's weights need not be loaded).
+        name: the policy's config name (``policy=NAME``), for the message; ``None``: the class alone.
+
+    Raises:
+        PolicyKindError: names the task and the kinds it runs, the policy and its kind, and the shipped
+            policies that fit the task.
+    """
+    needs = session_class(task).policy_kinds
+    kind = policy_kind(policy_class)
+    if not needs or kind in needs:
+        return
+    task_name = task.get("name", "?")
+    what = POLICY_KINDS.get(kind, "none of the kinds a task runs (no plan or act method)")
+    policy = f"policy={name} ({policy_class.__name__})" if name else f"the policy {policy_class.__name__}"
+    fits = fitting_policies(task_name, needs)
+    hint = f"; policies that fit: {', '.join(f'policy={p}' for p in fits)}" if fits else ""
+    raise PolicyKindError(f"{policy} is {what}, but task={task_name} runs "
+                          f"{' or '.join(POLICY_KINDS[k] for k in needs)}{hint}")
+
+
+def fitting_policies(task_name: str, kinds: tuple[str, ...], folder: Path = POLICY_CONF) -> list[str]:
+    """The shipped policy configs of the given kinds that are not made for another task (by their ``task``
+    key or their name's ``<task>_`` prefix); only called to word a refusal (it imports the classes)."""
+    others = [t for t in TASKS if t != task_name]
+    found = []
+    for path in sorted(folder.glob("*.yaml")):
+        declared = _session_target(path, "task")
+        if (declared is not None and declared != task_name) or any(path.stem.startswith(f"{t}_") for t in others):
+            continue
+        try:
+            target = _session_target(path, "_target_")
+            if target is not None and policy_kind(get_class(target)) in kinds:
+                found.append(path.stem)
+        except Exception:  # noqa: BLE001, S112 - a config whose class does not import is simply not listed
+            continue
+    return found
+
+
+def _policy_class(policy) -> tuple[type | None, object]:
+    """``(class, instance)`` of a policy given as an instance or as a config with ``_target_`` (not built)."""
+    if isinstance(policy, Mapping) and "_target_" in policy:
+        return get_class(str(policy["_target_"])), None
+    return (type(policy), policy) if policy is not None else (None, None)
+
+
+def _choice(group: str) -> str | None:
+    """The option of a config group the running Hydra app chose (``policy=NAME``), or ``None``."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        found = HydraConfig.get().runtime.choices.get(group)
+        return str(found) if found is not None else None
+    return None
+
+
 def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:
     """Refuse, before any simulation, an object the task cannot use or a policy made for another task.
 
     Args:
         task: the task config as a plain dict (``name``, ``session``).
-        policy: the instantiated policy; checked when it has ``check(task, obs_spec, num_actions)``.
+        policy: the policy, or its config as a plain dict with ``_target_`` (its class is checked first,
+            then it is built); checked when it has ``check(task, obs_spec, num_actions)``.
         mesh: the nominal object (meters).
         object_scale: the scale ``mesh`` was loaded with (the app's ``object_scale``).
 
     Raises:
+        PolicyKindError: a policy of a kind the task cannot run (a grasp planner on insertion, ...).
         grt.policies.rsl_rl.CheckpointError: a policy for another task/observation, naming both sides.
         grt.tasks.socket.PlugFitError (or the task's own error): an object the task cannot use.
         TaskInputError: ``object_scale`` set while the task's session reloads a mesh file by itself.
     """
+    cls, built = _policy_class(policy)
+    if cls is not None:
+        check_policy_kind(task, cls, _choice("policy"))
     for key in ("socket_object", "handle_object"):  # sessions that rebuild a part from the nominal mesh file
         value = task["session"].get(key)
         if object_scale != 1.0 and value is not None and str(value) not in list_objects():
@@ -80,11 +152,13 @@ def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:
                                  "without it; export the mesh in meters and leave object_scale=1.0")
     session = session_class(task)  # a variant YAML (grasp_2cam) names the same class
     session.check_object(mesh, **{k: v for k, v in task["session"].items() if k != "_target_"})
-    check = getattr(policy, "check", None)
+    if built is None and cls is not None:
+        built = instantiate(policy)
+    check = getattr(built, "check", None)
     if check is not None:
         spec = session.observation_spec(**{k: v for k, v in task["session"].items() if k == "cloud_points"})
         check(getattr(session, "task_name", "") or task["name"], spec, session.num_actions)
 
 
-__all__ = ["COMMON_MODES", "TASKS", "EpisodeSession", "TaskSession", "TrialOutcome", "get_task", "preflight",
-           "session_class"]
+__all__ = ["COMMON_MODES", "TASKS", "EpisodeSession", "PolicyKindError", "TaskSession", "TrialOutcome",
+           "check_policy_kind", "get_task", "preflight", "session_class"]

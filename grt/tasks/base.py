@@ -70,6 +70,9 @@ class TaskSession(ABC):
     #: Every mode a trial of this task can end in: :data:`COMMON_MODES` and the task's own failure modes.
     failure_modes: tuple[str, ...] = COMMON_MODES
 
+    #: the kinds of policy (keys of :data:`grt.policies.base.POLICY_KINDS`) this task runs; empty: any.
+    policy_kinds: tuple[str, ...] = ()
+
     #: observation groups this task produces (name -> shape without the batch dimension).
     obs_spec: dict[str, tuple[int, ...]] = {}
     num_actions: int = 0
@@ -125,6 +128,7 @@ class EpisodeSession(TaskSession):
             outcome depends only on (object, seed), whatever ran before in this process.
     """
 
+    policy_kinds = ("closed_loop",)
     #: the task's name (``conf/task/<name>.yaml``), checked against a learned policy's training task.
     task_name: str = ""
     #: the gymnasium env a subclass builds (``gym.make``), closed and rendered by the methods below.

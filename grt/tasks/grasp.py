@@ -61,6 +61,7 @@ class GraspSession(TaskSession):
     """
 
     failure_modes = (*COMMON_MODES, "no_grasp_found", "unreachable", "missed", "dropped_lift", "dropped_shake")
+    policy_kinds = ("grasp_planner", "grasp_step")
 
     def __init__(self, policy, env_id: str = "GRT-Grasp-v1", num_cameras: int = 6, camera_width: int = 360,
                  camera_height: int = 240, xy_range: float = 0.02, yaw_range: float = 0.79,

@@ -206,3 +206,41 @@ def _handles(loop):
     from grt.selectors.base import HandleSet
 
     return HandleSet(handles=loop.deformer.handles, anchors=loop.deformer.anchors, notes={})
+
+
+def _strict_json(line: str) -> dict:
+    def refuse(constant):
+        raise ValueError(f"{constant} is not strict JSON")
+
+    return json.loads(line, parse_constant=refuse)
+
+
+def test_a_nan_score_is_written_as_strict_json_and_reads_back_as_nan(tmp_path):
+    from grt.journal import chain_checksum
+
+    path = tmp_path / "journal.jsonl"
+    j = Journal(path)
+    implausible = {"iteration": 1, "candidate": 0, "score": float("nan"), "ci95": [float("nan"), float("nan")],
+                   "entropy": None, "trials": [{"seed": 3, "score": float("-inf")}], "wall_s": 0.1}
+    j.append({"iteration": 0, "candidate": 0, "score": 0.75, "ci95": [0.5, 0.9], "entropy": None, "trials": []})
+    j.append(implausible)
+    lines = path.read_text().splitlines()
+    records = [_strict_json(line) for line in lines]  # any JSON reader takes every line
+    assert records[1]["score"] is None and records[1]["entropy"] is None and "nonfinite" not in records[0]
+    back = Journal(path).records  # checksums verified, the NaN restored where it was (not the real None)
+    assert np.isnan(back[1]["score"]) and np.isnan(back[1]["ci95"]).all() and back[1]["entropy"] is None
+    assert back[1]["trials"][0]["score"] == float("-inf") and back[0] == j.records[0]
+    assert json.dumps(back[1], sort_keys=True) == json.dumps(j.records[1], sort_keys=True)
+
+    old = tmp_path / "old.jsonl"  # a journal written before: bare NaN in its lines, its checksums over them
+    head, out = "", []
+    for rec in ({"iteration": 0, "candidate": 0, "score": 0.75}, {"iteration": 1, "candidate": 0, "score": float("nan")}):
+        head = chain_checksum(head, rec)
+        out.append(json.dumps({**rec, "sha256": head}, separators=(",", ":")))
+    old.write_text("\n".join(out) + "\n")
+    assert "NaN" in old.read_text()
+    legacy = Journal(old)
+    assert np.isnan(legacy.records[1]["score"]) and legacy.unchecked_lines == 0
+    legacy.append({"iteration": 1, "candidate": 1, "score": float("nan")})  # continues the chain, strictly
+    _strict_json(old.read_text().splitlines()[-1])
+    assert len(Journal(old).records) == 3

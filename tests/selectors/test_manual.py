@@ -60,7 +60,7 @@ def test_json_file_and_errors(sphere, tmp_path):
     assert np.all(sphere.vertices[hs.anchors][:, 2] <= -0.03)
     with pytest.raises(ValueError, match="overlap"):
         ManualSelector(handles=[1], anchors=[1, 2, 3]).select(sphere, "t")
-    with pytest.raises(ValueError, match="no handles"):
+    with pytest.raises(ValueError, match="needs handles"):
         ManualSelector().select(sphere, "t")
     with pytest.raises(ValueError, match="no vertex"):
         ManualSelector(handle_regions=[{"box": [[1, 1, 1], [2, 2, 2]]}]).select(sphere, "t")
