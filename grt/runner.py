@@ -30,6 +30,7 @@ from grt.geometry.prepare import describe as describe_preparation
 from grt.geometry.quality import candidate_validity
 from grt.journal import Journal
 from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
+from grt.policies.base import PolicyServerError
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.runfolder import refuse_unless_run, save_run_config
 from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
@@ -82,9 +83,13 @@ def run(cfg: DictConfig) -> dict:
                 folding(t)),
             ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
             validity=candidate_validity if cfg.deformer.validity else None)
-        result = loop.run()
-        bar.close()
-        confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
+        try:
+            result = loop.run()
+            bar.close()
+            confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
+        except PolicyServerError as err:  # a served policy went away: the journal keeps what finished
+            raise PolicyServerError(f"{err}; start the server again and finish the run: "
+                                    f"python -m grt.run resume={shlex.quote(str(run_dir))}") from None
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
                                 wall_s=time.perf_counter() - start, confirmation=confirmation)
         logger.log_summary(summary)
