@@ -44,6 +44,14 @@ def make_server(cfg: DictConfig) -> PolicyServer:
     choice = HydraConfig.get().runtime.choices.get("policy", "policy") if HydraConfig.initialized() else "policy"
     common = dict(task=task_name, name=str(choice), version=_version(cfg.policy), host=str(cfg.serve.host),
                   port=int(cfg.serve.port), token=cfg.serve.token, max_message=int(cfg.serve.max_message))
+    try:
+        return _server(policy, session, task, task_name, str(choice), common)
+    except OSError as err:  # the port is taken, or the host is not an interface of this machine
+        raise PolicyServerError(f"cannot listen on {cfg.serve.host}:{cfg.serve.port} ({err.strerror or err}): "
+                                "pick another serve.port (0: any free one) or serve.host") from None
+
+
+def _server(policy, session, task: dict, task_name: str, choice: str, common: dict) -> PolicyServer:
     if isinstance(policy, GraspPolicy):
         if session.num_actions or session.observation_spec():
             raise PolicyServerError(f"policy={choice} is a grasp planner, task={task['name']} is a closed-loop "
@@ -78,7 +86,7 @@ def _version(policy_cfg: DictConfig) -> str:
 @hydra.main(config_path=CONF_DIR, config_name="serve", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: print the URL, then serve until Ctrl-C."""
-    with exit_on_user_error(OSError):
+    with exit_on_user_error():
         server = make_server(cfg)
     print(server.url, flush=True)
     info = server.info

@@ -81,7 +81,8 @@ def test_no_server_is_one_line_naming_the_url_before_any_simulation(tmp_path):
 
 @pytest.mark.parametrize(("args", "token", "message"), [
     (["task=insertion"], None, "serves greedy 1 (batched policy for 'point_mass'), but the run's task is 'insertion'"),
-    (["task=insertion"], "s3cret", "refused the connection: bad or missing token")])
+    pytest.param(["task=insertion"], "s3cret", "refused the connection: bad or missing token",
+                 marks=pytest.mark.slow)])
 def test_handshake_mismatch_and_bad_token_are_one_line(tmp_path, args, token, message):
     server = PolicyServer(act=lambda obs: np.zeros((1, 2)), kind="batched", task="point_mass", obs={"state": [4]},
                           action_size=2, name="greedy", version="1", port=0, token=token)
@@ -137,3 +138,27 @@ def test_a_server_killed_mid_run_stops_it_cleanly_and_resume_finishes_it(tmp_pat
         resumed = grt("run", f"resume={run_dir}")
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert journal.read_text().count("\n") == 7 and (run_dir / "summary.json").exists()
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["task=drawer", "policy=insertion_state"], "was trained for task 'insertion', but the run's task is 'drawer'"),
+    pytest.param(["task=insertion", "policy=antipodal"], "policy=antipodal is a grasp planner, task=insertion is a "
+                 "closed-loop", marks=pytest.mark.slow)])
+def test_serving_a_policy_for_another_task_is_one_line(args, message):
+    proc = grt("serve", *args, "serve.port=0", timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and not proc.stdout.strip()
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], proc.stderr
+
+
+@pytest.mark.slow
+def test_a_taken_port_is_one_line():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = grt("serve", "policy=insertion_servo", f"serve.port={port}", timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: cannot listen on 127.0.0.1:{port} (Address already in use")
+    assert lines[0].endswith("pick another serve.port (0: any free one) or serve.host"), proc.stderr
