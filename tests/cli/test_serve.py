@@ -30,8 +30,8 @@ def free_port() -> int:
 class Served:
     """``python -m grt.serve ARGS`` (or another command) as a subprocess; its first line is the URL."""
 
-    def __init__(self, *args: str, command: list[str] | None = None):
-        self.proc = subprocess.Popen(command or [sys.executable, "-m", "grt.serve", *args], cwd=ROOT, env=ENV,
+    def __init__(self, *args: str, command: list[str] | None = None, cwd: Path = ROOT):
+        self.proc = subprocess.Popen(command or [sys.executable, "-m", "grt.serve", *args], cwd=cwd, env=ENV,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.url = self.proc.stdout.readline().strip()
         threading.Thread(target=self.proc.stdout.read, daemon=True).start()  # never block the server on a pipe
@@ -162,3 +162,25 @@ def test_a_taken_port_is_one_line():
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"error: cannot listen on 127.0.0.1:{port} (Address already in use")
     assert lines[0].endswith("pick another serve.port (0: any free one) or serve.host"), proc.stderr
+
+
+@pytest.mark.slow
+def test_the_documented_server_of_your_own_act_function_runs(tmp_path):
+    """docs/remote-policies.md's example, as written (a scripted network stands in for the user's file)."""
+    import torch
+
+    text = (ROOT / "docs" / "remote-policies.md").read_text()
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
+    assert len(code.strip().splitlines()) <= 25
+    torch.jit.save(torch.jit.script(torch.nn.Linear(24, 6)), tmp_path / "my_insertion_policy.pt")
+    (tmp_path / "policy_server.py").write_text((ROOT / "grt" / "policy_server.py").read_text())
+    (tmp_path / "serve_my_policy.py").write_text(code.replace("port=8000", "port=0"))
+    from grt.policies.remote import connect
+
+    with Served(command=[sys.executable, "serve_my_policy.py"], cwd=tmp_path) as server:
+        policy = connect(server.url)
+        policy.check("insertion", {"state": (24,), "grip": (6,), "cloud": (500, 3)}, 6)
+        policy.reset(0)
+        action = policy.act({"state": np.ones((2, 24), np.float32), "cloud": np.zeros((2, 500, 3), np.float32)})
+        assert action.shape == (2, 6) and policy.name.startswith("my-insertion-policy")
+        policy.close()
