@@ -175,7 +175,7 @@ class PolicyServer:
                 return
             conn.send(pack({"type": "hello", **self.info}))
             for data in conn:
-                conn.send(pack(self._answer(data)))
+                conn.send(self._answer(data))
         except ConnectionClosed:
             pass
 
@@ -191,28 +191,34 @@ class PolicyServer:
             return "bad or missing token: give the server's token (policy.token)"
         return None
 
-    def _answer(self, data) -> dict:
+    def _answer(self, data) -> bytes:
+        """The packed reply to one request; the policy's own failure (or an unsendable answer) is an
+        ``error`` reply for the client to record, never a crash of the server."""
         rid = None
         try:
             msg = unpack(data)
-            rid, kind = msg.get("id"), msg["type"]
-            with self._lock:
-                if kind == "reset":
-                    if self._reset is not None:
-                        self._reset(int(msg["seed"]))
-                    return {"type": "ok", "id": rid}
-                if kind == "act" and self._act is not None:
-                    obs = msg["obs"]
-                    if not isinstance(obs, dict) or not all(isinstance(v, np.ndarray) for v in obs.values()):
-                        raise ProtocolError("act: obs must be a map of arrays")
-                    return {"type": "action", "id": rid, "action": np.asarray(self._act(obs))}
-                if kind == "plan" and self._plan is not None:
-                    grasps = self._plan(msg["points"], msg["viewpoints"], float(msg["table_z"]), int(msg["seed"]),
-                                        msg.get("context"))
-                    return {"type": "grasps", "id": rid, "grasps": [_grasp_message(g) for g in grasps]}
-            raise ProtocolError(f"a {self.info['kind']} server does not answer {kind!r}")
-        except Exception as err:  # the policy's own failure is the client's to record, never a crash here
-            return {"type": "error", "id": rid, "message": f"{type(err).__name__}: {err}"}
+            rid = msg.get("id")
+            return pack(self._reply(msg))
+        except Exception as err:
+            return pack({"type": "error", "id": rid, "message": f"{type(err).__name__}: {err}"})
+
+    def _reply(self, msg: dict) -> dict:
+        rid, kind = msg.get("id"), msg["type"]
+        with self._lock:
+            if kind == "reset":
+                if self._reset is not None:
+                    self._reset(int(msg["seed"]))
+                return {"type": "ok", "id": rid}
+            if kind == "act" and self._act is not None:
+                obs = msg["obs"]
+                if not isinstance(obs, dict) or not all(isinstance(v, np.ndarray) for v in obs.values()):
+                    raise ProtocolError("act: obs must be a map of arrays")
+                return {"type": "action", "id": rid, "action": np.asarray(self._act(obs))}
+            if kind == "plan" and self._plan is not None:
+                grasps = self._plan(msg["points"], msg["viewpoints"], float(msg["table_z"]), int(msg["seed"]),
+                                    msg.get("context"))
+                return {"type": "grasps", "id": rid, "grasps": [_grasp_message(g) for g in grasps]}
+        raise ProtocolError(f"a {self.info['kind']} server does not answer {kind!r}")
 
 
 def _grasp_message(grasp: Any) -> dict:
@@ -286,8 +292,8 @@ class PolicyClient:
         deadline = time.monotonic() + self.timeout
         while True:
             reply = unpack(self.conn.recv(timeout=max(deadline - time.monotonic(), 0.0)))
-            if reply.get("id") == rid:
-                return reply
+            if reply.get("id") == rid or (reply.get("id") is None and reply["type"] == "error"):
+                return reply  # (an error without id: the server could not read our request)
             if not isinstance(reply.get("id"), int) or reply["id"] > rid:
                 raise ProtocolError(f"reply to an unknown request {reply.get('id')!r}")
 

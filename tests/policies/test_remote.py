@@ -130,12 +130,17 @@ def test_timeouts_errors_and_malformed_replies_are_reply_errors():
         if slow.is_set():
             time.sleep(0.6)
         mode = int(obs["state"][0, 0])
-        return {0: np.zeros((1, 2)), 1: np.zeros((1, 3)), 2: np.full((1, 2), np.nan)}.get(mode) if mode < 3 else 1 / 0
+        replies = {0: np.zeros((1, 2)), 1: np.zeros((1, 3)), 2: np.full((1, 2), np.nan),
+                   4: np.array([[object(), 1]], dtype=object)}
+        if mode not in replies:
+            raise ZeroDivisionError("the policy itself failed")
+        return replies[mode]
 
     with serve(act=act) as server:
         policy = connect(server.url, timeout=0.3)
         for mode, message in ((1, r"action of shape \(1, 3\), expected \(1, 2\)"), (2, "non-finite action"),
-                              (3, "answered with an error: ZeroDivisionError")):
+                              (3, "answered with an error: ZeroDivisionError"),
+                              (4, "answered with an error: ProtocolError: cannot send an array of dtype object")):
             with pytest.raises(PolicyReplyError, match=message):
                 policy.act({"state": np.full((1, 4), mode, np.float32)})
         slow.set()
