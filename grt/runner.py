@@ -32,7 +32,7 @@ from grt.journal import Journal
 from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
 from grt.policies.base import PolicyServerError
 from grt.redteam import RedTeamLoop, episode_seeds
-from grt.runfolder import refuse_unless_run, save_run_config
+from grt.runfolder import refuse_unless_run, save_run_config, without_secrets
 from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
 from grt.selectors.base import HandleSet
 from grt.tasks import preflight
@@ -73,7 +73,7 @@ def run(cfg: DictConfig) -> dict:
     folding = FoldingWatch(journal, len(handle_set.handles), cfg.budget.sigma)
     bar = tqdm(total=total, desc="red-team", unit="cand", initial=len(journal), dynamic_ncols=True)
     try:
-        logger.start(run_dir, name=run_dir.name, config=plain(cfg))
+        logger.start(run_dir, name=run_dir.name, config=without_secrets(cfg))
         loop = RedTeamLoop(
             deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
             complexity=angular_deficit_entropy,
