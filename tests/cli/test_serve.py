@@ -63,11 +63,15 @@ def trials(folder: Path) -> list[tuple]:
             for t in record["trials"]]
 
 
-def evaluate_both(tmp_path: Path, url: str, *args: str) -> tuple[list, list]:
+def evaluate_served_and_in_process(tmp_path: Path, url: str, policy: str, *args: str) -> tuple[list, list]:
+    """The trials of ``grt.evaluate ARGS`` through ``policy=remote`` and with ``policy=POLICY`` in process."""
     common = [*args, "budget.workers=1", "evaluator.progress=false"]
-    remote = grt("evaluate", "policy=remote", f"policy.url={url}", *common, f"hydra.run.dir={tmp_path / 'remote'}")
-    assert remote.returncode == 0, remote.stderr[-2000:]
-    return trials(tmp_path / "remote"), common
+    found = []
+    for name, given in (("remote", ["policy=remote", f"policy.url={url}"]), ("local", [f"policy={policy}"])):
+        proc = grt("evaluate", *given, *common, f"hydra.run.dir={tmp_path / name}")
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        found.append(trials(tmp_path / name))
+    return found[0], found[1]
 
 
 def test_no_server_is_one_line_naming_the_url_before_any_simulation(tmp_path):
@@ -96,19 +100,17 @@ def test_handshake_mismatch_and_bad_token_are_one_line(tmp_path, args, token, me
 @pytest.mark.slow
 def test_the_shipped_insertion_policy_served_scores_as_in_process(tmp_path):
     with Served("policy=insertion_state", "serve.port=0") as server:
-        remote, common = evaluate_both(tmp_path, server.url, "task=insertion", "budget.trials=3")
-    local = grt("evaluate", "task=insertion", "policy=insertion_state", *common, f"hydra.run.dir={tmp_path / 'local'}")
-    assert local.returncode == 0, local.stderr[-2000:]
-    assert remote == trials(tmp_path / "local")
+        remote, local = evaluate_served_and_in_process(tmp_path, server.url, "insertion_state", "task=insertion",
+                                                       "budget.trials=3")
+    assert remote == local
 
 
 @pytest.mark.slow
 def test_the_antipodal_planner_served_scores_as_in_process(tmp_path):
     with Served("task=grasp", "policy=antipodal", "serve.port=0") as server:
-        remote, common = evaluate_both(tmp_path, server.url, "task=grasp", "object=mug", "budget.trials=2")
-    local = grt("evaluate", "task=grasp", "policy=antipodal", *common, f"hydra.run.dir={tmp_path / 'local'}")
-    assert local.returncode == 0, local.stderr[-2000:]
-    assert remote == trials(tmp_path / "local")
+        remote, local = evaluate_served_and_in_process(tmp_path, server.url, "antipodal", "task=grasp",
+                                                       "object=mug", "budget.trials=2")
+    assert remote == local
     assert any(t[3].get("num_grasps") for t in remote)  # grasps crossed the wire
 
 
