@@ -115,6 +115,15 @@ register()
 
 # --------------------------------------------------------------------------------- writing and reading
 
+def without_secrets(cfg: DictConfig) -> dict:
+    """The resolved config, but a served policy's shared secret (``policy.token``) as given — its
+    ``${oc.env:GRT_POLICY_TOKEN,null}`` — never its value: what run folders and loggers may keep."""
+    config = plain(cfg)
+    if isinstance(config.get("policy"), dict) and config["policy"].get("token") is not None:
+        config["policy"]["token"] = OmegaConf.to_container(cfg.policy, resolve=False)["token"]
+    return config
+
+
 def save_run_config(cfg: DictConfig, run_dir: Path) -> None:
     """Write the run's own record once, read-only: what ``resume=`` reads, so no later command rewrites it.
 
@@ -125,7 +134,7 @@ def save_run_config(cfg: DictConfig, run_dir: Path) -> None:
     if path.exists():
         return
     hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
-    config = {**plain(cfg), "resume": None}
+    config = {**without_secrets(cfg), "resume": None}
     _set_absent(config, "task.nominal_floor", _floor(config))  # every FROM_COMMAND key a run reads is here
     record = {
         FORMAT_KEY: FORMAT,

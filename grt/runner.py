@@ -30,8 +30,9 @@ from grt.geometry.prepare import describe as describe_preparation
 from grt.geometry.quality import candidate_validity
 from grt.journal import Journal
 from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
+from grt.policies.base import PolicyServerError
 from grt.redteam import RedTeamLoop, episode_seeds
-from grt.runfolder import refuse_unless_run, save_run_config
+from grt.runfolder import refuse_unless_run, save_run_config, without_secrets
 from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
 from grt.selectors.base import HandleSet
 from grt.tasks import preflight
@@ -72,7 +73,7 @@ def run(cfg: DictConfig) -> dict:
     folding = FoldingWatch(journal, len(handle_set.handles), cfg.budget.sigma)
     bar = None
     try:
-        logger.start(run_dir, name=run_dir.name, config=plain(cfg))
+        logger.start(run_dir, name=run_dir.name, config=without_secrets(cfg))
         if len(journal) < total and hasattr(evaluator, "start"):
             evaluator.start()  # one line, then the workers' start-up, outside the bar's rate and ETA
         bar = progress(total, "red-team", "cand", initial=len(journal))
@@ -85,9 +86,13 @@ def run(cfg: DictConfig) -> dict:
                 folding(t)),
             ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
             validity=candidate_validity if cfg.deformer.validity else None)
-        result = loop.run()
-        bar.close()
-        confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
+        try:
+            result = loop.run()
+            bar.close()
+            confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
+        except PolicyServerError as err:  # a served policy went away: the journal keeps what finished
+            raise PolicyServerError(f"{err}; start the server again and finish the run: "
+                                    f"python -m grt.run resume={shlex.quote(str(run_dir))}") from None
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
                                 wall_s=time.perf_counter() - start, confirmation=confirmation, score=score)
         logger.log_summary(summary)

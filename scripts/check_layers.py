@@ -29,6 +29,7 @@ PACKAGE = "grt"
 # and the command-line apps sit on top.
 LAYERS: dict[str, int] = {
     "grt": 0, "grt.errors": 0, "grt.fileio": 0, "grt.console": 0,
+    "grt.policy_server": 0,  # imports no GRT module: it is copied alone into a policy's own environment
     "grt.objects": 1,
     "grt.geometry": 2,
     "grt.optimizers": 3, "grt.metrics": 3, "grt.scores": 3,
@@ -41,6 +42,7 @@ LAYERS: dict[str, int] = {
     "grt.rl": 9, "grt.blueteam": 9,
     "grt.bench": 10,
     "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11,
+    "grt.serve": 11,
 }
 TOP = 11  # every ``__main__`` module (a ``python -m`` shim)
 

@@ -7,6 +7,13 @@ channel. The parent (:class:`WorkerPool`) hands out jobs, collects one message p
 worker dies (segfault, ``os._exit``, OOM kill) or hangs past ``trial_timeout`` it restarts the worker
 and re-runs the seeds that had not finished; a seed that kills its worker more than ``max_retries``
 times becomes a ``sim_error`` outcome.
+
+A policy served from another process (:mod:`grt.policies.remote`) adds two events that are no trial's
+fault: its connection broke mid-trial (:class:`~grt.policies.base.PolicyInterrupted`: the worker
+re-runs that trial from its start, up to :data:`MAX_INTERRUPTIONS` times), or its server stayed down
+(:class:`~grt.policies.base.PolicyUnavailable`): the worker says so and the pool stops the evaluation
+with a :class:`~grt.policies.base.PolicyServerError` (one line; a red-team run is finished later with
+``resume=DIR``).
 """
 
 from __future__ import annotations
@@ -31,9 +38,12 @@ import numpy as np
 import trimesh
 
 from grt.evaluators.base import SIM_ERROR
+from grt.policies.base import PolicyInterrupted, PolicyServerError, PolicyUnavailable
 from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)
+#: re-runs of one trial whose policy connection broke, before the policy counts as unavailable
+MAX_INTERRUPTIONS = 3
 
 
 @dataclass
@@ -78,8 +88,9 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to report; it stops us
     try:
         session = build_session(task, policy)
-    except BaseException:
-        conn.send(("fatal", traceback.format_exc()))
+    except BaseException as exc:
+        down = _policy_down(exc)
+        conn.send(("unavailable", down) if down else ("fatal", traceback.format_exc()))
         return
     if threads and "torch" in sys.modules:  # torch also reads OMP_NUM_THREADS; make sure
         sys.modules["torch"].set_num_threads(threads)
@@ -90,6 +101,8 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
     try:
         while (job := conn.recv()) is not None:
             _run_job(session, job, conn, using)
+    except PolicyUnavailable as exc:
+        conn.send(("unavailable", str(exc)))
     finally:
         session.close()
 
@@ -111,7 +124,7 @@ def _run_job(session, job: Job, conn: Connection, using: dict | None = None) -> 
             outcome = sim_error(seed, load_error)
         else:
             try:
-                outcome = session.run_trial(int(seed))
+                outcome = _run_trial(session, int(seed), lambda: _load(session, mesh, job.parts))
             except Exception as exc:
                 outcome = sim_error(seed, f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
                 # The session's state is unknown after a failure: rebuild the object before going on.
@@ -122,6 +135,34 @@ def _run_job(session, job: Job, conn: Connection, using: dict | None = None) -> 
         conn.send(("trial", (job.job_id, int(seed), outcome, now - start)))
         start = now
     conn.send(("done", job.job_id))
+
+
+def _run_trial(session, seed: int, reload: Callable[[], str | None]) -> TrialOutcome:
+    """One trial, re-run from its start when the policy's connection broke in it (the policy's episode
+    state is gone; the scene is rebuilt, as after any failure).
+
+    Raises:
+        PolicyUnavailable: interrupted :data:`MAX_INTERRUPTIONS` times in a row.
+    """
+    for _ in range(MAX_INTERRUPTIONS):
+        try:
+            return session.run_trial(seed)
+        except PolicyInterrupted as exc:
+            log.warning("seed %d: %s; re-running the trial", seed, exc)
+            why = exc
+            if (error := reload()) is not None:
+                raise RuntimeError(error) from None
+    raise PolicyUnavailable(f"trial {seed} interrupted {MAX_INTERRUPTIONS} times in a row: {why}")
+
+
+def _policy_down(exc: BaseException) -> str | None:
+    """The message of a policy server that cannot be reached behind ``exc`` (Hydra wraps errors), or ``None``."""
+    seen = 0
+    while exc is not None and seen < 10:
+        if isinstance(exc, PolicyServerError | PolicyUnavailable):
+            return str(exc)
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return None
 
 
 def _use_policy(session, policy: dict | None, using: dict) -> str | None:
@@ -331,6 +372,10 @@ class WorkerPool:
         if kind == "fatal":
             self.close()
             raise RuntimeError(f"an evaluator worker could not build its task session:\n{payload}")
+        if kind == "unavailable":
+            self.close()
+            raise PolicyServerError(f"{payload}; the evaluation stopped (nothing of its unfinished trials "
+                                    "was recorded)")
         if kind == "ready":
             w.ready = True
         elif kind == "trial" and w.job is not None:

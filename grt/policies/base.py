@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from grt.errors import UserError
 from grt.policies.pointcloud import oriented_cloud
 
 
@@ -89,6 +90,22 @@ class BatchedPolicy(ABC):
     @abstractmethod
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """Actions ``(N, A)`` for a batch of observations ``{group: (N, ...)}``."""
+
+
+class PolicyServerError(UserError):
+    """A policy in another process that cannot be reached, refuses the connection, is made for another
+    task, or went away for good (:mod:`grt.policies.remote`): one line naming it, exit code 2."""
+
+
+class PolicyInterrupted(BaseException):
+    """The policy lost its state in the middle of a trial (its server went away): the trial did not fail,
+    it is re-run from its start (the evaluator's worker does it). A ``BaseException``, so that the trial's
+    own ``except Exception`` (which records a ``sim_error``) does not judge it."""
+
+
+class PolicyUnavailable(BaseException):
+    """The policy cannot answer any more (its server stayed down): the evaluation stops, nothing is
+    judged, and the run can be finished later (``resume=DIR``). A ``BaseException`` for the same reason."""
 
 
 class GraspPredictor(ABC):

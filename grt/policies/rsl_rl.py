@@ -92,6 +92,12 @@ class RslRlPolicy(BatchedPolicy):
         self.device, self.deterministic = device, bool(deterministic)
 
     @property
+    def input_spec(self) -> dict[str, tuple[int, ...]]:
+        """The observation groups the actor reads (of :attr:`obs_spec`, which may hold more)."""
+        groups = self.config["train_cfg"]["obs_groups"].get("actor") or sorted(self.obs_spec)
+        return {g: self.obs_spec[g] for g in groups if g in self.obs_spec}
+
+    @property
     def task(self) -> str:
         return str(self.config["task"])
 

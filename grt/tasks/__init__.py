@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from hydra.utils import get_class, instantiate
+from hydra.utils import get_class, get_object, instantiate
 from omegaconf import OmegaConf
 
 from grt.objects import list_objects
@@ -112,7 +112,11 @@ def fitting_policies(task_name: str, kinds: tuple[str, ...], folder: Path = POLI
 def _policy_class(policy) -> tuple[type | None, object]:
     """``(class, instance)`` of a policy given as an instance or as a config with ``_target_`` (not built)."""
     if isinstance(policy, Mapping) and "_target_" in policy:
-        return get_class(str(policy["_target_"])), None
+        target = get_object(str(policy["_target_"]))
+        if isinstance(target, type):
+            return target, None
+        built = instantiate(policy)  # a factory (policy=remote's connect): its product has the class
+        return type(built), built
     return (type(policy), policy) if policy is not None else (None, None)
 
 

@@ -60,6 +60,8 @@ class GraspSession(TaskSession):
         max_policy_steps: step budget of a closed-loop policy.
     """
 
+    #: the task's name, checked against a served policy's (grasp_2cam is this task with two cameras)
+    task_name = "grasp"
     failure_modes = (*COMMON_MODES, "no_grasp_found", "unreachable", "missed", "dropped_lift", "dropped_shake")
     policy_kinds = ("grasp_planner", "grasp_step")
 

@@ -30,8 +30,15 @@ def test_option_composes_and_resolves(group, option, tmp_path):
     if group in ("optimizer",):
         opt = instantiate(node)(num_handles=4)
         assert opt.ask().shape == (cfg.budget.population, 4, 3)
-    if group in ("selector", "logger", "policy"):
+    if group in ("selector", "logger") or (group == "policy" and option != "remote"):
         instantiate(node)
+    if (group, option) == ("policy", "remote"):  # a client: it says hello to a server before anything else
+        from grt.policy_server import PolicyServer
+
+        plan = lambda *args: []  # noqa: E731
+        with PolicyServer(plan=plan, kind="grasp", task=cfg.task.name, port=0) as server:
+            node.url = server.url
+            instantiate(node).check(cfg.task.name, {}, 0)
 
 
 def test_optimizer_config_name_matches_class_and_file():

@@ -1,0 +1,69 @@
+"""A cheap closed-loop task and policy for the remote-policy tests (imported by spawned workers and by the
+server script ``_serve_toy.py``).
+
+:class:`PointMassSession` is a real :class:`grt.tasks.base.EpisodeSession` (its ``run_trial`` records
+failures as the simulator's tasks do): a point starts and aims at seeded positions, each action moves it
+by at most 0.1 per axis; it succeeds within 0.05 of the goal before ``max_steps`` (far goals time out).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from grt.policies.base import BatchedPolicy
+from grt.tasks.base import COMMON_MODES, EpisodeSession
+
+
+class GreedyPolicy(BatchedPolicy):
+    """Head for the goal at full speed; ``delay`` seconds per call (a slow network policy)."""
+
+    def __init__(self, delay: float = 0.0):
+        self.delay = float(delay)
+
+    def act(self, obs):
+        if self.delay:
+            time.sleep(self.delay)
+        state = np.asarray(obs["state"], np.float64)
+        return np.clip((state[:, 2:] - state[:, :2]) / 0.1, -1.0, 1.0).astype(np.float32)
+
+
+class PointMassSession(EpisodeSession):
+    task_name = "point_mass"
+    obs_spec = {"state": (4,)}
+    num_actions = 2
+    failure_modes = (*COMMON_MODES, "timeout")
+
+    def __init__(self, policy=None, max_steps: int = 8, rebuild_each_trial: bool = True):
+        super().__init__(policy, max_steps, rebuild_each_trial)
+        self.scale = 1.0
+
+    def load_object(self, mesh, parts) -> None:
+        self.scale = float(np.max(mesh.extents)) / 0.06  # the object matters a little
+
+    def _reset_env(self, seed: int, rebuild: bool) -> None:
+        rng = np.random.default_rng(seed)
+        self.pos, self.goal = rng.uniform(-0.6, 0.6, 2) * self.scale, rng.uniform(-0.6, 0.6, 2)
+
+    def _step_env(self, action):
+        self.pos = self.pos + 0.1 * np.asarray(action, np.float64)
+        distance = float(np.linalg.norm(self.pos - self.goal))
+        return -distance, distance < 0.05, {"distance": distance}
+
+    def observe(self):
+        return {"state": np.concatenate([self.pos, self.goal]).astype(np.float32)}
+
+    def judge(self, success: bool, info: dict) -> str:
+        return "success" if success else "timeout"
+
+
+if __name__ == "__main__":  # python _remote_toy.py PORT [DELAY]: serve GreedyPolicy (the server of the tests)
+    from grt.policy_server import PolicyServer
+
+    policy = GreedyPolicy(float(sys.argv[2]) if len(sys.argv) > 2 else 0.0)
+    server = PolicyServer(act=policy.act, kind="batched", task="point_mass", obs={"state": [4]}, action_size=2,
+                          name="greedy", version="1", port=int(sys.argv[1]))
+    print(server.url, flush=True)
+    server.serve_forever()
