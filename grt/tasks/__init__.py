@@ -102,7 +102,8 @@ def fitting_policies(task_name: str, kinds: tuple[str, ...], folder: Path = POLI
             continue
         try:
             target = _session_target(path, "_target_")
-            if target is not None and policy_kind(get_class(target)) in kinds:
+            obj = get_object(target) if target is not None else None
+            if isinstance(obj, type) and policy_kind(obj) in kinds:  # a factory (remote) has no fixed kind
                 found.append(path.stem)
         except Exception:  # noqa: BLE001, S112 - a config whose class does not import is simply not listed
             continue
