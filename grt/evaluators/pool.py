@@ -90,6 +90,8 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
     try:
         while (job := conn.recv()) is not None:
             _run_job(session, job, conn, using)
+    except (EOFError, OSError):  # the parent is gone (killed, or stopped without closing us): nobody to tell
+        pass
     finally:
         session.close()
 
