@@ -391,8 +391,8 @@ class FolderBusyError(UserError):
 
 
 _held: dict[Path, int] = {}  # run folder (resolved) -> this process's locked file descriptor of its LOCK
-_claimed: dict[Path, tuple[Path | None, set[str]]] = {}  # run folder -> (first folder made for it, Hydra's
-# files there before this command)
+_claimed: dict[Path, tuple[Path | None, set[str], set[str]]] = {}  # run folder -> (first folder made for it,
+# Hydra's files there before this command, the names of Hydra's files)
 
 
 def acquire(run_dir: str | Path) -> bool:
@@ -464,12 +464,13 @@ def _release_all() -> None:
         release(key)
 
 
-def claim(run_dir: Path, resume: str | None) -> None:
+def claim(run_dir: Path, resume: str | None, log_file: str = "run.log") -> None:
     """Make and lock the folder of a ``grt.run`` before Hydra writes anything into it.
 
     Refuses a new run in a folder that holds a run (its record would be rewritten and two runs' journals
     mixed) and a folder another process runs in; notes what this command makes, so that a run refused
-    before it saved anything leaves nothing behind (:func:`discard_new`).
+    before it saved anything leaves nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's
+    log file (``<app>.log``).
 
     Raises:
         ResumeError: a new run (no ``resume=``) in a run's folder.
@@ -477,7 +478,8 @@ def claim(run_dir: Path, resume: str | None) -> None:
         OutputError: the folder cannot be made or written.
     """
     first_new = next((p for p in reversed([run_dir, *run_dir.parents]) if not p.exists()), None)
-    before = {name for name in (".hydra", "run.log") if (run_dir / name).exists()}
+    hydra_files = {".hydra", log_file}
+    before = {name for name in hydra_files if (run_dir / name).exists()}
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
         acquire(run_dir)  # first: a folder a run is running in is "in use", whatever this command is
@@ -489,21 +491,26 @@ def claim(run_dir: Path, resume: str | None) -> None:
         release(run_dir)
         raise ResumeError(f"hydra.run.dir={run_dir} already holds a run ({RUN_CONFIG} there), which this command "
                           f"would overwrite: continue it with {resume_command(run_dir)}, or give a new folder")
-    _claimed[run_dir.resolve()] = (first_new, before)
+    _claimed[run_dir.resolve()] = (first_new, before, hydra_files)
 
 
 def discard_new(run_dir: Path) -> str:
-    """Remove what this command made for a run that saved nothing (no :data:`RUN_CONFIG`): the folder it
-    created, or its Hydra files in a folder that was there. Returns the words saying so ("" if nothing)."""
+    """Remove what this command made for a run that saved nothing (the folder holds only Hydra's files):
+    the folder it created, or its Hydra files in a folder that was there. Returns the words saying so
+    ("" if nothing was removed)."""
     key = Path(run_dir).resolve()
     if key not in _claimed or is_run_folder(run_dir):
         return ""
-    first_new, before = _claimed.pop(key)
+    first_new, before, hydra_files = _claimed[key]
+    made = {p.name for p in run_dir.iterdir()} - before - {LOCK} if run_dir.is_dir() else set()
+    if not made <= hydra_files:  # the command saved something of its own: keep it all
+        return ""
+    del _claimed[key]
     release(run_dir)
     if first_new is not None:
         _remove_new(run_dir, first_new)
         return f"nothing was saved and the new folder {run_dir} was removed"
-    for name in {".hydra", "run.log"} - before:
+    for name in made:
         path = run_dir / name
         if path.is_dir():
             shutil.rmtree(path, ignore_errors=True)
@@ -537,7 +544,7 @@ class RunFolderCallback(Callback):
         except Exception:  # noqa: BLE001 - e.g. an unknown object in the folder's name: Hydra reports it
             return
         try:
-            claim(run_dir, OmegaConf.select(config, "resume"))
+            claim(run_dir, OmegaConf.select(config, "resume"), f"{config.hydra.job.name}.log")
         except UserError as exc:
             print(f"error: {exc}", file=sys.stderr, flush=True)
             raise SystemExit(2) from None
