@@ -392,7 +392,7 @@ class FolderBusyError(UserError):
 
 _held: dict[Path, int] = {}  # run folder (resolved) -> this process's locked file descriptor of its LOCK
 _claimed: dict[Path, tuple[Path | None, set[str], set[str]]] = {}  # run folder -> (first folder made for it,
-# Hydra's files there before this command, the names of Hydra's files)
+# what the folder held before this command, the names of Hydra's files)
 
 
 def acquire(run_dir: str | Path) -> bool:
@@ -479,7 +479,7 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log") -> None:
     """
     first_new = next((p for p in reversed([run_dir, *run_dir.parents]) if not p.exists()), None)
     hydra_files = {".hydra", log_file}
-    before = {name for name in hydra_files if (run_dir / name).exists()}
+    before = set(os.listdir(run_dir)) if run_dir.is_dir() else set()
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
         acquire(run_dir)  # first: a folder a run is running in is "in use", whatever this command is
