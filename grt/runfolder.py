@@ -107,9 +107,12 @@ def resume_or(resume: str | None, default: str) -> str:
         return default
     # Shared by grt.run, grt.blueteam and grt.train: a folder one of them made (a red-team run, or Hydra's
     # record of a fine-tune / training run); grt.run checks its own kind first.
+    if not Path(resume).is_dir():
+        raise ResumeError(f"resume={resume}: no such folder, so nothing to resume; give the folder of an earlier "
+                          "run (or leave resume= out to start a new one)")
     if not (is_run_folder(resume) or (Path(resume) / ".hydra" / "config.yaml").is_file()):
         raise ResumeError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG} or .hydra/config.yaml), "
-                         "so nothing to resume")
+                          "so nothing to resume")
     return str(resume)
 
 

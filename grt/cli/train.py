@@ -24,7 +24,7 @@ from omegaconf import DictConfig
 import grt.config  # noqa: F401 - registers schemas and resolvers
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
 from grt.rl.policy_training import train_policy
-from grt.runfolder import discard_new  # also registers the resume_or resolver
+from grt.runfolder import ResumeError, discard_new, resume_or  # also registers the resume_or resolver
 
 
 @hydra.main(config_path=CONF_DIR, config_name="train_policy", version_base="1.3")
@@ -32,6 +32,11 @@ def main(cfg: DictConfig) -> float:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with exit_on_user_error():
         try:
+            if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
+                resume = Path(resume_or(cfg.resume, ""))
+                if resume.resolve() != out_dir.resolve():
+                    raise ResumeError(f"resume={cfg.resume} with hydra.run.dir={out_dir}: a training goes on in its "
+                                      f"own folder; give resume={cfg.resume} alone")
             result = train_policy(cfg, out_dir)
         except Exception as exc:
             found = find_user_error(exc)
