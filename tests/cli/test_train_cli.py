@@ -53,6 +53,7 @@ def test_a_resume_of_a_missing_folder_is_refused_with_a_run_folder_given_too(tmp
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow  # ~13 s (the app imports torch); check_export's own test below is fast
 def test_replacing_a_shipped_policy_needs_the_flag_and_is_checked_before_training(tmp_path):
     before = hashlib.sha256(SHIPPED_FILE.read_bytes()).hexdigest()
     line = one_error_line(grt_train(f"train.export={SHIPPED_FILE}", cwd=tmp_path))
