@@ -13,6 +13,12 @@ from collections.abc import Iterable
 from pathlib import Path
 
 INTERRUPTED = 130  # the shell's code for a process ended by SIGINT (128 + 2)
+TERMINATED = 143  # and by SIGTERM (128 + 15), how schedulers and `timeout` stop a job
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by the command-line apps' handler: a job a scheduler or ``timeout``
+    stops ends as one stopped with Ctrl-C does (every ``except KeyboardInterrupt`` applies), exit code 143."""
 
 
 class UserError(ValueError):

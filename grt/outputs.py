@@ -172,6 +172,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": cfg.budget.tau, "seed": cfg.budget.seed,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
+        "workers": getattr(evaluator, "worker_limits", None),  # requested, used (bounded by cores, memory)
         "mesh_preparation": deformer.mesh.metadata.get("grt_prepare"),  # repairs, remesh, fidelity (mm)
         "deformer": deformer_summary(deformer),
         "invalid_candidates": sum(1 for r in records if r["iteration"] >= 1 and r.get("valid") is False),

@@ -22,8 +22,15 @@ code elsewhere needs a branch for older folders.
 
 from __future__ import annotations
 
+import atexit
+import contextlib
+import errno
+import fcntl
 import os
 import shlex
+import shutil
+import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,9 +38,11 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import Override
 from hydra.errors import HydraException
+from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from grt.config import plain
+from grt.errors import OutputError, UserError
 from grt.fileio import write_text_atomic
 from grt.geometry.deform import DEFAULT_RADIUS
 from grt.journal import JournalError
@@ -98,9 +107,12 @@ def resume_or(resume: str | None, default: str) -> str:
         return default
     # Shared by grt.run, grt.blueteam and grt.train: a folder one of them made (a red-team run, or Hydra's
     # record of a fine-tune / training run); grt.run checks its own kind first.
+    if not Path(resume).is_dir():
+        raise ResumeError(f"resume={resume}: no such folder, so nothing to resume; give the folder of an earlier "
+                          "run (or leave resume= out to start a new one)")
     if not (is_run_folder(resume) or (Path(resume) / ".hydra" / "config.yaml").is_file()):
-        raise ValueError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG} or .hydra/config.yaml), "
-                         "so nothing to resume")
+        raise ResumeError(f"resume={resume}: not a GRT run folder (no {RUN_CONFIG} or .hydra/config.yaml), "
+                          "so nothing to resume")
     return str(resume)
 
 
@@ -332,12 +344,225 @@ def own_config(cfg: DictConfig) -> DictConfig:
     return own
 
 
-def interrupted(run_dir: Path) -> str:
-    """The line printed on Ctrl-C: how to continue the run (or that nothing of it was saved yet)."""
+def interrupted(run_dir: Path, how: str = "interrupted (Ctrl-C)") -> str:
+    """The line printed on Ctrl-C (``how``: or SIGTERM): how to continue the run (or that nothing of it was
+    saved yet)."""
     if not is_run_folder(run_dir):
-        return "interrupted (Ctrl-C) before the run saved its config; start it again with the same command"
+        return f"{how} before the run saved its config; start it again with the same command"
+    return f"{how}; continue this run with: {resume_command(run_dir)}"
+
+
+def resume_command(run_dir: Path) -> str:
+    """``python -m grt.run resume=DIR`` (DIR relative to the working folder when under it)."""
     shown = Path(os.path.relpath(run_dir)) if run_dir.resolve().is_relative_to(Path.cwd()) else run_dir
-    return f"interrupted (Ctrl-C); continue this run with: python -m grt.run resume={shlex.quote(str(shown))}"
+    return f"python -m grt.run resume={shlex.quote(str(shown))}"
+
+
+def storage_error(exc: BaseException, run_dir: Path) -> str | None:
+    """One line for a run that could not write its files (disk full, quota, read-only or forbidden folder)
+    anywhere in ``exc``'s chain, naming the disk and how to go on; ``None`` for other errors."""
+    for _ in range(10):
+        if exc is None or (isinstance(exc, OSError) and exc.errno in _STORAGE):
+            break
+        exc = exc.__cause__ or exc.__context__
+    if not isinstance(exc, OSError) or exc.errno not in _STORAGE:
+        return None
+    where = f"writing {exc.filename}" if exc.filename else f"writing in {run_dir}"
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        what = f"the disk of {_mount_point(run_dir)} is full ({exc.strerror}, {where})"
+        fix = "free space there"
+    else:
+        what = f"cannot write the run's files ({exc.strerror}, {where})"
+        fix = "make the folder writable"
+    if is_run_folder(run_dir):
+        return f"{what}; the journal keeps every finished candidate: {fix}, then continue with: " \
+               f"{resume_command(run_dir)}"
+    return f"{what}; nothing of the run was saved: {fix} (or give another folder, hydra.run.dir=PATH) and " \
+           "start it again with the same command"
+
+
+_STORAGE = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM)
+
+
+def _mount_point(path: Path) -> Path:
+    path = Path(os.path.abspath(path))
+    while not path.exists() or not os.path.ismount(path):
+        if path.parent == path:
+            break
+        path = path.parent
+    return path
+
+
+# ------------------------------------------------------------------------------------- one run, one folder
+
+LOCK = ".grt.lock"  # in the run folder while a process runs there: its PID, under an exclusive flock
+
+
+class FolderBusyError(UserError):
+    """Another process holds the run folder's lock."""
+
+
+_held: dict[Path, int] = {}  # run folder (resolved) -> this process's locked file descriptor of its LOCK
+_claimed: dict[Path, tuple[Path | None, set[str], set[str]]] = {}  # run folder -> (first folder made for it,
+# what the folder held before this command, the names of Hydra's files)
+
+
+def acquire(run_dir: str | Path) -> bool:
+    """Take ``run_dir``'s exclusive lock (an ``flock`` on ``run_dir/.grt.lock``, holding this PID) for this
+    process's run; ``False`` if this process holds it already. The folder must exist. The kernel releases
+    the lock when the process ends, however it ends (a SIGKILL leaves the file, never a stale lock).
+
+    Raises:
+        FolderBusyError: another process holds it (names the folder and that process's PID).
+        OSError: the lock file cannot be written.
+    """
+    key = Path(run_dir).resolve()
+    if key in _held:
+        return False
+    path = key / LOCK
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise FolderBusyError(
+                f"{run_dir} is in use by another GRT process (PID {holder}, which holds {path}): two runs in one "
+                "folder would mix their journals. Wait for it to end (or stop it), or give this run another "
+                "folder (hydra.run.dir=PATH)") from None
+        try:  # the previous holder removes the file as it lets go: locked, it must still be the file
+            current = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            current = False
+        if current:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    except OSError:
+        os.close(fd)
+        raise
+    _held[key] = fd
+    return True
+
+
+def release(run_dir: str | Path) -> None:
+    """Let go of ``run_dir``'s lock if this process holds it (the lock file is removed)."""
+    key = Path(run_dir).resolve()
+    fd = _held.pop(key, None)
+    if fd is None:
+        return
+    with contextlib.suppress(OSError):
+        os.unlink(key / LOCK)  # before closing: a process waiting on it sees another file and retries
+    os.close(fd)
+
+
+@contextlib.contextmanager
+def locked(run_dir: str | Path) -> Iterator[None]:
+    """Hold ``run_dir``'s lock for the block (nothing to do if this process holds it already)."""
+    took = acquire(run_dir)
+    try:
+        yield
+    finally:
+        if took:
+            release(run_dir)
+
+
+@atexit.register
+def _release_all() -> None:
+    for key in list(_held):
+        release(key)
+
+
+def claim(run_dir: Path, resume: str | None, log_file: str = "run.log") -> None:
+    """Make and lock the folder of a ``grt.run`` before Hydra writes anything into it.
+
+    Refuses a new run in a folder that holds a run (its record would be rewritten and two runs' journals
+    mixed) and a folder another process runs in; notes what this command makes, so that a run refused
+    before it saved anything leaves nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's
+    log file (``<app>.log``).
+
+    Raises:
+        ResumeError: a new run (no ``resume=``) in a run's folder.
+        FolderBusyError: another process holds the folder's lock.
+        OutputError: the folder cannot be made or written.
+    """
+    first_new = next((p for p in reversed([run_dir, *run_dir.parents]) if not p.exists()), None)
+    hydra_files = {".hydra", log_file}
+    before = set(os.listdir(run_dir)) if run_dir.is_dir() else set()
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        acquire(run_dir)  # first: a folder a run is running in is "in use", whatever this command is
+    except OSError as exc:
+        _remove_new(run_dir, first_new)
+        raise OutputError(f"cannot write the run folder {run_dir}: {exc.strerror}; give a folder you can write to "
+                          "(hydra.run.dir=PATH)") from None
+    if not resume and is_run_folder(run_dir):
+        release(run_dir)
+        raise ResumeError(f"hydra.run.dir={run_dir} already holds a run ({RUN_CONFIG} there), which this command "
+                          f"would overwrite: continue it with {resume_command(run_dir)}, or give a new folder")
+    _claimed[run_dir.resolve()] = (first_new, before, hydra_files)
+
+
+def discard_new(run_dir: Path) -> str:
+    """Remove what this command made for a run that saved nothing (the folder holds only Hydra's files):
+    the folder it created, or its Hydra files in a folder that was there. Returns the words saying so
+    ("" if nothing was removed)."""
+    key = Path(run_dir).resolve()
+    if key not in _claimed or is_run_folder(run_dir):
+        return ""
+    first_new, before, hydra_files = _claimed[key]
+    made = {p.name for p in run_dir.iterdir()} - before - {LOCK} if run_dir.is_dir() else set()
+    if not made <= hydra_files:  # the command saved something of its own: keep it all
+        return ""
+    del _claimed[key]
+    release(run_dir)
+    if first_new is not None:
+        _remove_new(run_dir, first_new)
+        return f"nothing was saved and the new folder {run_dir} was removed"
+    for name in made:
+        path = run_dir / name
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    return f"nothing was saved in {run_dir}"
+
+
+def _remove_new(run_dir: Path, first_new: Path | None) -> None:
+    """Remove ``run_dir`` and the empty folders above it up to ``first_new`` (those this command made)."""
+    if first_new is None:
+        return
+    shutil.rmtree(run_dir, ignore_errors=True)
+    for folder in [run_dir, *run_dir.parents]:
+        with contextlib.suppress(OSError):
+            folder.rmdir()  # only an empty one: a folder another run made meanwhile stays
+        if folder == first_new:
+            break
+
+
+class RunFolderCallback(Callback):
+    """Hydra callback of ``grt.run`` (``conf/hydra/default.yaml``): :func:`claim` the run folder before Hydra
+    makes it and writes its record there. A sweep's jobs (new folders each) are locked by
+    :func:`grt.runner.run`. Hydra turns a callback's exception into a warning and goes on, so a refusal is
+    the apps' one ``error:`` line on stderr here, and exit code 2."""
+
+    def on_run_start(self, config: DictConfig, **kwargs) -> None:
+        HydraConfig.instance().set_config(config)  # hydra.run.dir reads ${hydra:runtime.choices...}
+        try:
+            run_dir = Path(str(config.hydra.run.dir))
+        except Exception:  # noqa: BLE001 - e.g. an unknown object in the folder's name: Hydra reports it
+            return
+        try:
+            claim(run_dir, OmegaConf.select(config, "resume"), f"{config.hydra.job.name}.log")
+        except UserError as exc:
+            print(f"error: {exc}", file=sys.stderr, flush=True)
+            raise SystemExit(2) from None
+
+    def on_run_end(self, config: DictConfig, **kwargs) -> None:
+        release(Path(str(config.hydra.run.dir)))
 
 
 def _key(override: str) -> str:

@@ -32,7 +32,7 @@ from grt.journal import Journal
 from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
 from grt.policies.base import PolicyServerError
 from grt.redteam import RedTeamLoop, episode_seeds
-from grt.runfolder import refuse_unless_run, save_run_config, without_secrets
+from grt.runfolder import locked, refuse_unless_run, save_run_config, without_secrets
 from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
 from grt.selectors.base import HandleSet
 from grt.tasks import preflight
@@ -48,6 +48,11 @@ def run(cfg: DictConfig) -> dict:
     score = ScoreSpec.from_task(cfg.task)  # a bad task.ci fails here, before any simulation
     floor = nominal_floor(cfg.task)
     run_dir.mkdir(parents=True, exist_ok=True)
+    with locked(run_dir):  # one process per run folder (grt.run's callback took it before Hydra wrote there)
+        return _run(cfg, run_dir, score, floor)
+
+
+def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
     start = time.perf_counter()
     scale = cfg.object_scale  # a resumed run's saved config is migrated (grt.runfolder): the key is there
     mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.mesh))

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -25,7 +27,7 @@ from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBase
 
 import grt.runfolder  # noqa: F401 - registers the resume_or resolver of hydra.run.dir before composition
 from grt.config import BudgetSchema, budget_hint, unknown_budget_key
-from grt.errors import INTERRUPTED, OutputError, UserError
+from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
 
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
@@ -90,14 +92,29 @@ def exit_on_user_error(*also: type[BaseException]):
         raise SystemExit(2) from None
 
 
+def stop_on_sigterm() -> None:
+    """Make SIGTERM (schedulers, ``timeout``) stop this process as Ctrl-C does: :class:`grt.errors.Terminated`
+    is raised in the main thread, so the app says how to go on and exits with code 143. A second SIGTERM
+    ends the process at once."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def terminated(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        raise Terminated
+
+    signal.signal(signal.SIGTERM, terminated)
+
+
 def run_cli(main: Callable[[], object]) -> None:
     """Call a ``@hydra.main`` app so that every user mistake is one ``error:`` line and exit code 2.
 
     Covers what happens before the app's own code runs: Hydra's composition errors (unknown key or
     option, wrong type, bad override syntax) and an output folder it cannot create or write. Other
     errors keep their traceback (exit code 1). ``HYDRA_FULL_ERROR=1`` set by the user is honoured.
-    Use: ``def cli(): run_cli(main)``.
+    Use: ``def cli(): run_cli(main)``. SIGTERM stops the app as Ctrl-C does (:func:`stop_on_sigterm`).
     """
+    stop_on_sigterm()
     previous = os.environ.get("HYDRA_FULL_ERROR")
     if previous == "1":
         with exit_on_user_error():

@@ -14,7 +14,13 @@ A run writes its own config once, when it starts, to ``run_config.yaml`` (read-o
 alone is the whole command to continue it (:mod:`grt.runfolder`): :func:`cli` checks DIR and the command
 before Hydra starts, so a refused resume writes nothing anywhere, and hands Hydra the run's own overrides;
 ``main`` then runs the saved config. Ctrl-C ends a run with one line naming the command that continues it
-(exit code 130).
+(exit code 130), and so does SIGTERM, how schedulers and ``timeout`` stop a job (exit code 143).
+
+Every refusal is one ``error: ...`` line on stderr (exit code 2); a run refused before it saved anything
+leaves no folder behind (:func:`grt.runfolder.discard_new`). The folder is made and locked before Hydra
+writes into it (:class:`grt.runfolder.RunFolderCallback`): a second process in it is refused, naming the
+first's PID, and a new run never overwrites a run's record. A full disk or a folder that cannot be written
+mid-run is one line naming the disk and the command that continues the run (exit code 1).
 """
 
 from __future__ import annotations
@@ -33,8 +39,8 @@ from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
 from grt.config import validate
-from grt.errors import INTERRUPTED
-from grt.runfolder import interrupted, own_config, resume_overrides
+from grt.errors import INTERRUPTED, TERMINATED, Terminated
+from grt.runfolder import discard_new, interrupted, own_config, resume_overrides, storage_error
 from grt.runner import run
 
 log = logging.getLogger("grt.run")
@@ -43,14 +49,18 @@ log = logging.getLogger("grt.run")
 @hydra.main(config_path=CONF_DIR, config_name="run", version_base="1.3")
 def main(cfg: DictConfig) -> float:
     """Hydra entry point; returns Final Drop (NaN for a failed job of a sweep, which goes on)."""
+    logging.raiseExceptions = False  # a full disk ends the run with one line, not a traceback per log record
     if cfg.resume:
         cfg = own_config(cfg)
+    run_dir = Path(cfg.resume or cfg.paths.output_dir)
     try:
         validate(cfg)  # budget ranges, +budget keys, optimizer settings: refused before any simulation
         summary = run(cfg)
-    except KeyboardInterrupt:
-        log.warning(interrupted(Path(cfg.resume or cfg.paths.output_dir)))
-        raise SystemExit(INTERRUPTED) from None
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (grt.errors.Terminated)
+        stop, code = (("terminated (SIGTERM)", TERMINATED) if isinstance(exc, Terminated)
+                      else ("interrupted (Ctrl-C)", INTERRUPTED))
+        _say(interrupted(run_dir, stop), discard_new(run_dir))
+        raise SystemExit(code) from None
     except Exception as exc:
         if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
             out = Path(cfg.paths.output_dir)  # the job's own folder (never a refused resume's)
@@ -60,11 +70,21 @@ def main(cfg: DictConfig) -> float:
                       type(exc).__name__, exc, out / "error.txt")
             return math.nan
         found = find_user_error(exc)
-        if found is not None:
-            log.error("%s: %s", type(found).__name__, found)
-            raise SystemExit(2) from exc
+        if found is not None:  # refused: one line on stderr, and a run that saved nothing leaves nothing
+            _say(f"error: {found}", discard_new(run_dir))
+            raise SystemExit(2) from None
+        storage = storage_error(exc, run_dir)  # disk full, folder not writable: one line, how to go on
+        if storage is not None:
+            _say(f"error: {storage}", discard_new(run_dir))
+            raise SystemExit(1) from None
         raise
     return float(summary["final_drop"])
+
+
+def _say(line: str, also: str = "") -> None:
+    """One line on stderr (the convention of every refusal and stop), ``also`` in brackets after it."""
+    sys.stdout.flush()
+    print(f"{line} ({also})" if also else line, file=sys.stderr, flush=True)
 
 
 def cli(argv: list[str] | None = None) -> None:

@@ -103,6 +103,8 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
             _run_job(session, job, conn, using)
     except PolicyUnavailable as exc:
         conn.send(("unavailable", str(exc)))
+    except (EOFError, OSError):  # the parent is gone (killed, or stopped without closing us): nobody to tell
+        pass
     finally:
         session.close()
 
@@ -212,6 +214,37 @@ def _render(session, job: Job, seed: int) -> None:
 
 
 # ------------------------------------------------------------------------------------ parent side
+# Memory of one worker once its session is built (RSS, MB; the largest of the tasks measured with
+# scripts/worker_memory.py: 614-744 MB; see docs/benchmarks.md "Worker memory"), rounded up.
+WORKER_MB = 800
+
+
+def worker_limits(requested: int, worker_mb: float = WORKER_MB) -> dict:
+    """How many workers this machine can run: ``requested`` bounded by the CPU cores this process may use
+    and by the memory available (``MemAvailable``) over ``worker_mb``; at least one.
+
+    Returns ``{"requested", "used", "cores", "available_mb", "worker_mb"}`` (``available_mb`` ``None`` where
+    the system does not say).
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    available = _available_mb()
+    used = min(int(requested), cores)
+    if available is not None:
+        used = min(used, int(available // worker_mb))
+    return {"requested": int(requested), "used": max(1, used), "cores": cores,
+            "available_mb": None if available is None else round(available), "worker_mb": worker_mb}
+
+
+def _available_mb() -> float | None:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return None
+
+
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "LP_NUM_THREADS")
 
 
@@ -265,6 +298,10 @@ class WorkerPool:
         startup_timeout: seconds a worker may take to build its session.
         threads: CPU threads per worker for BLAS/OpenMP, torch and the lavapipe renderer (``None``:
             the libraries' defaults). Workers already fill the cores; more threads only contend.
+
+    More workers than the cores this process may use, or than the available memory holds at
+    :data:`WORKER_MB` each, are not started: the pool warns with the numbers and runs as many as fit
+    (``limits``, see :func:`worker_limits`); results do not depend on the number of workers.
     """
 
     def __init__(self, task: dict, policy: dict, workers: int = 2, start_method: str = "spawn",
@@ -275,7 +312,14 @@ class WorkerPool:
         if start_method not in ("spawn", "forkserver"):
             raise ValueError(f"start_method must be 'spawn' or 'forkserver', got {start_method!r}")
         self.task, self.policy = task, policy
-        self.num_workers, self.max_retries = int(workers), int(max_retries)
+        self.limits = worker_limits(workers)
+        if self.limits["used"] < workers:
+            free = self.limits["available_mb"]
+            log.warning("workers=%d: starting %d simulator workers, as many as this machine holds (%d CPU cores "
+                        "for this process, %s memory available, ~%d MB per worker); results do not depend on the "
+                        "number of workers", workers, self.limits["used"], self.limits["cores"],
+                        "unknown" if free is None else f"{free / 1024:.1f} GB", self.limits["worker_mb"])
+        self.num_workers, self.max_retries = self.limits["used"], int(max_retries)
         self.trial_timeout, self.startup_timeout = trial_timeout, startup_timeout
         _reset_foreign_start_method()
         self.ctx = mp.get_context(start_method)

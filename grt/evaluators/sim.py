@@ -65,7 +65,8 @@ class SimEvaluator(Evaluator):
         self.collision = make_collision(collision, nominal, coacd, cache_dir, max_hull_vertices)
         self.collision_kind = collision
         self.pool = WorkerPool(task, policy, workers, start_method, max_retries, trial_timeout, threads=threads)
-        self.workers, self.chunk_size, self.progress = int(workers), chunk_size, progress
+        self.workers, self.chunk_size, self.progress = self.pool.num_workers, chunk_size, progress
+        self.worker_limits = self.pool.limits  # requested and used workers, cores, memory (summary.json)
         self.render_dir = str(render_dir) if render_dir else None
         self.collision_s = 0.0
         self.run_s = 0.0  # seconds of the last evaluate's trials (the time its progress bar measures)

@@ -5,8 +5,10 @@ checkpoints with the GRT config inside, resumable), ``curve.png`` (training curv
 (figures), with ``train.validation`` also ``val_best.pt`` (the deterministic policy that scored best
 on held-out validation episodes, checked every few iterations and before the first: the exported
 one) and, when ``eval_trials > 0``, ``evaluation.json``: the exported policy scored on seeded
-episodes through the same evaluator as ``python -m grt.evaluate``. The exported policy file
-(``train.export``, no optimizer state) is what ``conf/policy/<name>.yaml`` points at.
+episodes through the same evaluator as ``python -m grt.evaluate``. The run folder's ``policy.pt`` (no
+optimizer state) is the trained policy; ``train.export=PATH`` copies it to PATH too, an explicit opt-in:
+a shipped policy (a file under ``grt/policies/checkpoints``, what ``conf/policy/<name>.yaml`` points at)
+is replaced only with ``train.overwrite_shipped=true`` as well, checked before any training.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from grt.config import plain
+from grt.errors import OutputError, check_output_file
 from grt.evaluators.collision import make_collision
 from grt.evaluators.pool import build_session
 from grt.evaluators.sim import SimEvaluator
@@ -34,7 +37,13 @@ log = logging.getLogger("grt.train")
 
 def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
     """Train (or resume, in ``out_dir``) the policy of the ``train_policy`` config; returns ``train.json``'s
-    figures (``iterations``, ``steps``, ``best_success``, ``wall_s``, ``selected``, ``evaluation``, ...)."""
+    figures (``iterations``, ``steps``, ``best_success``, ``wall_s``, ``selected``, ``evaluation``, ...).
+
+    Raises:
+        OutputError: ``train.export`` names a shipped policy without ``train.overwrite_shipped=true``, or a
+            file that cannot be written (before any training).
+    """
+    check_export(plain(cfg.train))
     mesh = load_mesh(cfg.object)
     collision = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64)  # as the evaluator
     parts = collision.parts(mesh)
@@ -82,6 +91,28 @@ def _export(cfg: DictConfig, train_cfg: dict, mesh, out_dir: Path, result: dict)
     if train_cfg.get("export"):
         dest = export_policy(policy_file, Path(train_cfg["export"]), metrics=result)
         result["exported"] = str(dest)
+
+
+SHIPPED = Path(__file__).resolve().parents[1] / "policies" / "checkpoints"  # grt/policies/checkpoints
+
+
+def check_export(train_cfg: dict) -> Path | None:
+    """``train.export`` as a path (``None``: no export), refused before any training when it would replace
+    a shipped policy without ``train.overwrite_shipped=true`` or cannot be written.
+
+    Raises:
+        OutputError: names the file and the flag that allows it.
+    """
+    export = train_cfg.get("export")
+    if not export:
+        return None
+    dest = check_output_file(export, (".pt",), flag="train.export")
+    shipped = dest.resolve().is_relative_to(SHIPPED)
+    if shipped and dest.exists() and not train_cfg.get("overwrite_shipped", False):
+        raise OutputError(f"train.export={export} would replace a policy shipped with GRT ({dest.name} in "
+                          f"{SHIPPED}); add train.overwrite_shipped=true to replace it, or export elsewhere "
+                          "(train.export=PATH; the run folder's policy.pt is always written)")
+    return dest
 
 
 def _validator(task: dict, mesh, parts, trials: int):

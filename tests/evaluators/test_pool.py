@@ -2,10 +2,21 @@
 
 from __future__ import annotations
 
+import logging
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 from omegaconf import OmegaConf
 
+from grt.evaluators.pool import WORKER_MB, WorkerPool, worker_limits
 from grt.evaluators.sim import SimEvaluator
+
+HERE = Path(__file__).parent
+ROOT = HERE.parents[1]
 
 SEEDS = [11, 12, 13, 14, 15, 16]
 
@@ -102,3 +113,44 @@ def test_the_workers_swap_in_another_policy_for_one_call_and_give_their_own_back
     assert reference[0].score > 0 and swapped.score == again.score == 0.0
     assert _modes([own]) == _modes(reference[:1])
     assert all(t.mode == "sim_error" and "policy failed" in t.info["error"] for t in broken.trials)
+
+
+def test_workers_are_bounded_by_the_cores_and_the_memory(toy_configs, caplog):
+    """Issue 30 (5): more workers than this machine holds are not started; the pool says so with the numbers."""
+    cores = len(os.sched_getaffinity(0))
+    limits = worker_limits(10_000)
+    assert limits["requested"] == 10_000 and limits["cores"] == cores
+    assert 1 <= limits["used"] <= cores and limits["used"] * WORKER_MB <= max(limits["available_mb"], WORKER_MB)
+    assert worker_limits(1)["used"] == 1
+    assert worker_limits(cores, worker_mb=1e12)["used"] == 1  # never none
+    task, policy = toy_configs()
+    with caplog.at_level(logging.WARNING, logger="grt.evaluators.pool"):
+        pool = WorkerPool(task, policy, workers=10_000)  # nothing is started before run()
+    assert pool.num_workers == limits["used"] and pool.workers == []
+    assert f"workers=10000: starting {limits['used']} simulator workers" in caplog.text
+    assert f"{cores} CPU cores" in caplog.text and f"~{WORKER_MB} MB per worker" in caplog.text
+
+
+KILLED_PARENT = """
+import os, signal, sys
+sys.path.insert(0, {here!r})
+from grt.evaluators.pool import WorkerPool
+pool = WorkerPool({{"name": "toy", "session": {{"_target_": "_toy_session.ToySession"}}}},
+                  {{"_target_": "_toy_session.ToyPolicy"}}, workers=1)
+pool.start()
+assert pool.workers[0].conn.recv()[0] == "ready"
+print(pool.workers[0].proc.pid, flush=True)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_workers_stop_quietly_when_their_parent_is_killed():
+    """Issue 30 (9): a worker whose parent died without closing it (SIGKILL, SIGTERM's default) ends without
+    a traceback (it printed ``EOFError`` from its pipe before)."""
+    proc = subprocess.Popen([sys.executable, "-c", KILLED_PARENT.format(here=str(HERE))], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out, err = proc.communicate(timeout=120)  # returns once the worker, which shares the pipes, is gone too
+    assert proc.returncode == -signal.SIGKILL, err[-3000:]
+    stat = Path(f"/proc/{int(out.split()[0])}/stat")
+    assert not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"  # gone (or not yet reaped)
+    assert "Traceback" not in err and "EOFError" not in err, err[-3000:]

@@ -2,7 +2,9 @@
 
 ``TOY`` are the overrides of such a run: the task's session class is the base :class:`TaskSession` (only its
 class-level checks run) and :class:`ToyEvaluator` scores a candidate by its volume. With the environment
-variable ``GRT_TEST_INTERRUPT_AT=n`` the n-th ``evaluate`` call raises ``KeyboardInterrupt``, as Ctrl-C would.
+variable ``GRT_TEST_INTERRUPT_AT=n`` the n-th ``evaluate`` call raises ``KeyboardInterrupt``, as Ctrl-C would;
+with ``GRT_TEST_HOLD_FILE=PATH`` every call after the first (the nominal object's) waits while PATH exists (at
+most 120 s): a test holds a run mid-way, with one journal line, for as long as it needs.
 
 Two other policies, for the confirmation tests (``+evaluator.coin=P``, ``+evaluator.bar_mm=B``): ``coin``, a
 policy blind to geometry whose every trial is a fresh coin flip (success with probability ``P``, seeded by
@@ -13,6 +15,7 @@ a policy that fails when the shape moved a vertex farther than ``B`` x (0.5 + a 
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 
@@ -47,6 +50,9 @@ class ToyEvaluator(Evaluator):
         self.calls += 1
         if self.calls == int(os.environ.get("GRT_TEST_INTERRUPT_AT", "0")):
             raise KeyboardInterrupt
+        hold, end = os.environ.get("GRT_TEST_HOLD_FILE"), time.monotonic() + 120
+        while hold and self.calls > 1 and os.path.exists(hold) and time.monotonic() < end:
+            time.sleep(0.05)
         out = []
         for mesh in meshes:
             trials = [TrialOutcome(s, float(ok), ok, "success" if ok else "missed")

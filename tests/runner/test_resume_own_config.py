@@ -154,5 +154,5 @@ def test_hydra_never_gets_a_run_folder_that_is_not_a_run(run_dir, tmp_path):
     """The hydra.run.dir resolver refuses too, for an app started some other way than ``python -m grt.run``."""
     assert resume_or(None, "outputs/new") == "outputs/new"
     assert resume_or(str(run_dir), "outputs/new") == str(run_dir)
-    with pytest.raises(ValueError, match="not a GRT run folder"):
+    with pytest.raises(ValueError, match="no such folder"):
         resume_or(str(tmp_path / "missing"), "outputs/new")
