@@ -47,10 +47,10 @@ FORMAT = 2
 # number of workers; loggers, the collision cache and Hydra's own files only record; the nominal floor only
 # decides whether the run goes on after S0), so a resumed run stays the run its journal was written by.
 RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra", "task.nominal_floor",
-               "budget.confirm_trials")
+               "budget.confirm_trials", "budget.videos", "report")
 # The parts of a resumed run's config taken from the command; all the rest is the run's saved config.
 FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths",
-                "task.nominal_floor", "budget.confirm_trials")
+                "task.nominal_floor", "budget.confirm_trials", "budget.videos", "report")
 RUN_FOLDERS = "outputs/<task>/<object>/<selector>-<optimizer>/<time>"
 # Targets renamed since format 1: the evaluators package was ``grt.eval`` (the alias package is gone).
 RENAMED_TARGETS = {"grt.eval.evaluator.SimEvaluator": "grt.evaluators.sim.SimEvaluator"}

@@ -12,7 +12,7 @@ import pytest
 tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 
 ROOT = Path(__file__).resolve().parents[2]
-COMMANDS = ("run", "evaluate", "select", "deform", "bench", "objects", "report", "blueteam", "train")
+COMMANDS = ("run", "evaluate", "select", "deform", "bench", "objects", "report", "blueteam", "train", "replay")
 
 
 def _cases(make) -> list:
