@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import os
 import re
 import time
@@ -30,6 +31,8 @@ log = logging.getLogger("grt.rerun")
 
 CANDIDATE = re.compile(r"it(\d+)_c(\d+)")
 VIDEO_FPS = 20
+VIDEO_SIZE = 320  # pixels, square
+MAX_FRAMES = 40  # about, per episode
 MAX_VIDEO_BYTES = 2_000_000
 
 
@@ -187,7 +190,8 @@ class RunReplayer:
             self._loaded = key
         start = time.perf_counter()
         frames: list[np.ndarray] = []
-        with _one_thread(), _filming(session, frames, stride=_stride(session)) if video else contextlib.nullcontext():
+        stride = _stride(session)
+        with _one_thread(), _filming(session, frames, stride=stride) if video else contextlib.nullcontext():
             outcome = session.run_trial(int(seed))
         name = "nominal" if iteration == 0 else f"it{iteration}_c{candidate}"
         out = {"candidate": name, "seed": int(seed), "outcome": outcome.mode, "score": outcome.score,
@@ -195,7 +199,7 @@ class RunReplayer:
                "match": outcome.mode == trial.get("mode") and outcome.score == trial.get("score"),
                "wall_s": round(time.perf_counter() - start, 2)}
         if video:
-            out["video"] = str(write_video(frames, Path(video)))
+            out["video"] = str(write_video(frames, Path(video), fps=max(1, round(VIDEO_FPS / stride))))
             out["frames"] = len(frames)
         return out
 
@@ -218,9 +222,11 @@ def _one_thread():
 
 
 def _stride(session) -> int:
-    """Film every step of a short episode, every n-th of a long one (~100 frames at most)."""
+    """Film every n-th control step, ~40 frames an episode (lavapipe renders ~10 frames/s on a CPU)."""
     steps = int(getattr(session, "max_steps", 0) or 0)
-    return max(1, steps // 100) if steps else 1
+    if not steps and isinstance(getattr(session, "steps", None), dict):  # the grasp session's phases
+        steps = sum(int(v) for v in session.steps.values())
+    return max(1, math.ceil((steps or 60) / MAX_FRAMES))
 
 
 @contextlib.contextmanager
@@ -229,6 +235,11 @@ def _filming(session, frames: list, stride: int = 1):
     env = session.env
     step = env.step
     count = [0]
+    # The trial rebuilds its scene first, which re-reads the render camera's settings: film at VIDEO_SIZE
+    # (lavapipe renders 512 x 512 at ~5 frames/s; 320 x 320 keeps a replay within seconds).
+    raw = env.unwrapped
+    custom = raw._custom_human_render_camera_configs
+    raw._custom_human_render_camera_configs = {**(custom or {}), "width": VIDEO_SIZE, "height": VIDEO_SIZE}
 
     def filmed(action):
         result = step(action)
@@ -244,6 +255,7 @@ def _filming(session, frames: list, stride: int = 1):
         yield
     finally:
         del env.step  # the instance attribute: the class's step again
+        raw._custom_human_render_camera_configs = custom
 
 
 def write_video(frames: list[np.ndarray], path: Path, fps: int = VIDEO_FPS) -> Path:
@@ -289,8 +301,8 @@ def render_videos(run_dir: Path, summary: dict, count: int) -> dict:
     run_dir = Path(run_dir)
     out = run_dir / "videos"
     out.mkdir(exist_ok=True)
-    index: dict = {"pairs": [], "camera": "fixed task render camera, 512 x 512, 20 frames/s (one frame per control "
-                   "step; long episodes every n-th step)"}
+    index: dict = {"pairs": [], "camera": f"fixed task render camera, {VIDEO_SIZE} x {VIDEO_SIZE}, about one frame per 0.1 s of the episode "
+                   "(every n-th control step, played in real time)"}
     start = time.perf_counter()
     problem = renderer_problem()
     shapes = (summary.get("crashshapes") or [])[:count]
@@ -299,7 +311,7 @@ def render_videos(run_dir: Path, summary: dict, count: int) -> dict:
     elif not shapes:
         index["skipped"] = "the run saved no CrashShape"
     else:
-        replayer = RunReplayer(run_dir)
+        replayer, filmed = RunReplayer(run_dir), {}
         try:
             for shape in shapes:
                 it, c = shape["iteration"], shape["candidate"]
@@ -310,11 +322,13 @@ def render_videos(run_dir: Path, summary: dict, count: int) -> dict:
                 seed = int(failing["seed"])
                 pair = {"title": f"rank {shape['rank']}: it{it}_c{c}", "seed": seed, "clips": []}
                 for label, (i, j) in (("nominal", (0, 0)), (f"CrashShape it{it}_c{c}", (it, c))):
-                    name = f"rank{shape['rank']}_{'nominal' if i == 0 else f'it{i}_c{j}'}_seed{seed}.mp4"
-                    res = replayer.run(i, j, seed, video=out / name)
-                    pair["clips"].append({"file": name, "label": label, "mode": res["outcome"],
-                                          "journal_mode": res["journal_outcome"], "match": res["match"],
-                                          "frames": res["frames"], "bytes": (out / name).stat().st_size})
+                    name = f"{'nominal' if i == 0 else f'it{i}_c{j}'}_seed{seed}.mp4"
+                    if name not in filmed:  # two shapes failing on one seed share the nominal's clip
+                        res = replayer.run(i, j, seed, video=out / name)
+                        filmed[name] = {"file": name, "mode": res["outcome"], "journal_mode": res["journal_outcome"],
+                                        "match": res["match"], "frames": res["frames"],
+                                        "bytes": (out / name).stat().st_size}
+                    pair["clips"].append({**filmed[name], "label": label})
                 index["pairs"].append(pair)
         except Exception as exc:  # a video is a nicety: the run's results stand; say why in one line
             index["skipped"] = f"filming stopped: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"

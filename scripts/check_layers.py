@@ -40,7 +40,7 @@ LAYERS: dict[str, int] = {
     "grt.loggers": 8, "grt.runner": 8, "grt.report": 8, "grt.rerun": 8,
     "grt.rl": 9, "grt.blueteam": 9,
     "grt.bench": 10,
-    "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11,
+    "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11, "grt.replay": 11,
 }
 TOP = 11  # every ``__main__`` module (a ``python -m`` shim)
 

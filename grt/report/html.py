@@ -470,8 +470,8 @@ def _modes_section(run: RunFolder) -> str:
                f"<table><tr><th>seed</th><th>nominal</th>{head}</tr>{''.join(body)}</table></details>")
     conf = [r for r in run.confirm if r.get("trials")]
     if conf:
-        out.append(f"<p class='note'>Confirmation on fresh episodes (confirm-*.jsonl): "
-                   + "; ".join(f"it{r['iteration']}_c{r['candidate']}: "
+        out.append("<p class='note'>Confirmation on fresh episodes (confirm-*.jsonl): "
+                   + "; ".join(("nominal" if r["iteration"] == 0 else f"it{r['iteration']}_c{r['candidate']}") + ": "
                                + ", ".join(f"{m} {n}" for m, n in sorted(_counts(r).items())) for r in conf) + "</p>")
     return "".join(out)
 
