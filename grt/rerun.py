@@ -62,6 +62,27 @@ def _records(run_dir: Path) -> list[dict]:
     return read_journal(path)[0]
 
 
+def check_trial(run_dir: Path, iteration: int, candidate: int, seed: int) -> dict:
+    """The journal's record of trial ``seed`` of a candidate (read before any simulator starts).
+
+    Raises:
+        ReplayError: no such candidate, a candidate never simulated, or not one of its seeds.
+    """
+    rec = next((r for r in _records(Path(run_dir)) if (r["iteration"], r["candidate"]) == (iteration, candidate)), None)
+    name = "nominal" if iteration == 0 else f"it{iteration}_c{candidate}"
+    if rec is None:
+        raise ReplayError(f"{name} is not in {Path(run_dir) / 'journal.jsonl'}; the report's trial table names the "
+                          "candidates (it<t>_c<i>, nominal)")
+    if rec.get("valid") is False:
+        raise ReplayError(f"{name} was refused as implausible and never simulated: no trial to replay")
+    trial = next((t for t in rec.get("trials", []) if int(t["seed"]) == int(seed)), None)
+    if trial is None:
+        seeds = [t["seed"] for t in rec.get("trials", [])]
+        raise ReplayError(f"seed {seed} is not a trial of {name}; its seeds: "
+                          f"{', '.join(map(str, seeds[:8]))}{' ...' if len(seeds) > 8 else ''}")
+    return trial
+
+
 def first_failure(run_dir: Path) -> tuple[str, int]:
     """The rank-1 CrashShape's first failing trial (candidate name, seed)."""
     summary_path = run_dir / "summary.json"

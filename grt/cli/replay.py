@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("options", nargs="*", help="candidate=it<t>_c<i>|nominal seed=<N> video=<out.mp4>")
     args = ap.parse_args(argv)
     with exit_on_user_error():
-        from grt.rerun import ReplayError, RunReplayer, first_failure, parse_candidate
+        from grt.rerun import ReplayError, RunReplayer, check_trial, first_failure, parse_candidate
 
         opts = _parse(args.options)
         if not (args.run / "journal.jsonl").is_file():
@@ -57,9 +57,9 @@ def main(argv: list[str] | None = None) -> int:
                               "python -m grt.run wrote")
         name, seed = (opts["candidate"], opts["seed"]) if "candidate" in opts else first_failure(args.run)
         it, c = parse_candidate(name)
+        check_trial(args.run, it, c, seed)  # a wrong candidate or seed is refused before anything is built
         replayer = RunReplayer(args.run)
         try:
-            replayer.record(it, c)  # a wrong candidate or seed is refused before the simulator starts
             print(f"replaying {name} on episode seed {seed} ({args.run})", flush=True)
             result = replayer.run(it, c, seed, video=Path(opts["video"]) if "video" in opts else None)
         finally:
