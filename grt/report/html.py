@@ -176,7 +176,7 @@ def headline(run: RunFolder, score: ScoreSpec) -> list[tuple[str, str, str, str,
              "1 - best / S0; interval: the best candidate's 95% interval with S0 fixed"),
             ("Iter@50%", f"{s.get('iter_at_50', '-')}{'' if s.get('reached_50', True) else ' (not reached)'}",
              "n/a", "iterations", "first iteration whose best-so-far drop reaches 50% (a point of the search)"),
-            ("AUC", _num(s.get("auc")), "n/a", "drop x iterations / T", "area under the degradation curve"),
+            ("AUC", _num(s.get("auc")), "n/a", "drop x iterations (max T)", "area under the degradation curve (trapezoid rule)"),
             ("ΔComplexity", _num(s.get("delta_complexity")), "n/a", "entropy (nats)",
              "angular-deficit entropy of the top candidates minus the nominal's")]
     conf = s.get("confirm")
