@@ -211,9 +211,15 @@ class RunReplayer:
             self._loaded = key
         start = time.perf_counter()
         frames: list[np.ndarray] = []
-        stride = _stride(session)
-        with _one_thread(), _filming(session, frames, stride=stride) if video else contextlib.nullcontext():
+        steps = [0]
+        with _one_thread(), _filming(session, steps=steps):
             outcome = session.run_trial(int(seed))
+        stride = max(1, math.ceil(steps[0] / MAX_FRAMES))
+        if video:  # filmed again, knowing its length: ~MAX_FRAMES frames (an outcome is a function of mesh and seed)
+            with _one_thread(), _filming(session, frames, stride=stride, steps=[0]):
+                filmed = session.run_trial(int(seed))
+            if (filmed.mode, filmed.score) != (outcome.mode, outcome.score):
+                self.notes.append(f"the filmed run ended {filmed.mode}, the unfilmed one {outcome.mode}")
         name = "nominal" if iteration == 0 else f"it{iteration}_c{candidate}"
         out = {"candidate": name, "seed": int(seed), "outcome": outcome.mode, "score": outcome.score,
                "journal_outcome": trial.get("mode"), "journal_score": trial.get("score"),
@@ -242,29 +248,23 @@ def _one_thread():
         yield
 
 
-def _stride(session) -> int:
-    """Film every n-th control step, ~40 frames an episode (lavapipe renders ~10 frames/s on a CPU)."""
-    steps = int(getattr(session, "max_steps", 0) or 0)
-    if not steps and isinstance(getattr(session, "steps", None), dict):  # the grasp session's phases
-        steps = sum(int(v) for v in session.steps.values())
-    return max(1, math.ceil((steps or 60) / MAX_FRAMES))
-
-
 @contextlib.contextmanager
-def _filming(session, frames: list, stride: int = 1):
-    """Grab a frame of the task's fixed render camera after every ``stride``-th env step."""
+def _filming(session, frames: list | None = None, stride: int = 1, steps: list | None = None):
+    """Count the env steps (``steps[0]``) and, with ``frames``, grab a frame of the task's fixed render
+    camera after every ``stride``-th step."""
     env = session.env
     step = env.step
-    count = [0]
-    # The trial rebuilds its scene first, which re-reads the render camera's settings: film at VIDEO_SIZE
-    # (lavapipe renders 512 x 512 at ~5 frames/s; 320 x 320 keeps a replay within seconds).
+    count = steps if steps is not None else [0]
     raw = env.unwrapped
     custom = raw._custom_human_render_camera_configs
-    raw._custom_human_render_camera_configs = {**(custom or {}), "width": VIDEO_SIZE, "height": VIDEO_SIZE}
+    if frames is not None:
+        # The trial rebuilds its scene first, which re-reads the render camera's settings: film at VIDEO_SIZE
+        # (lavapipe renders 512 x 512 at ~5 frames/s; 320 x 320 keeps a replay within seconds).
+        raw._custom_human_render_camera_configs = {**(custom or {}), "width": VIDEO_SIZE, "height": VIDEO_SIZE}
 
     def filmed(action):
         result = step(action)
-        if count[0] % stride == 0:
+        if frames is not None and count[0] % stride == 0:
             image = env.unwrapped.render_rgb_array()
             image = image.cpu().numpy() if hasattr(image, "cpu") else np.asarray(image)
             frames.append(np.asarray(image[0] if image.ndim == 4 else image, dtype=np.uint8))
