@@ -224,7 +224,7 @@ def search_svg(records: list[dict], score: ScoreSpec, width: int = 560, height: 
     lo = min(0.0, min(r["score"] for r in valid))
     hi = max(r["score"] for r in valid)
     hi = hi if hi > lo else lo + 1
-    m = 44
+    m = 56
     x = lambda t: m + (width - m - 12) * (t / max(iters, 1))  # noqa: E731
     y = lambda v: height - 30 - (height - 50) * (v - lo) / (hi - lo)  # noqa: E731
     out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' class='search'>",

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from grt.report.html import write_report
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -72,8 +74,7 @@ def test_failure_modes_and_seeds_of_every_trial_are_shown(toy_run):
 def test_a_sweep_page_links_each_runs_page(toy_run, tmp_path):
     for name in ("a", "b"):
         shutil.copytree(toy_run, tmp_path / "sweep" / name)
-    proc = report(tmp_path / "sweep", "--html")
-    assert proc.returncode == 0, proc.stderr
+    write_report(tmp_path / "sweep")
     page = (tmp_path / "sweep" / "report.html").read_text()
     assert "href='a/report.html'" in page and "href='b/report.html'" in page
     assert (tmp_path / "sweep" / "a" / "report.html").is_file()
@@ -89,8 +90,7 @@ def test_a_run_killed_mid_way_is_reported_as_partial(run_copy):
     (run_copy / "summary.json").unlink()
     lines = (run_copy / "journal.jsonl").read_text().splitlines(keepends=True)
     (run_copy / "journal.jsonl").write_text("".join(lines[:4]) + lines[4][:30])  # killed while writing a line
-    proc = report(run_copy, "--html")
-    assert proc.returncode == 0, proc.stderr
+    write_report(run_copy)
     page = (run_copy / "report.html").read_text()
     assert "(partial)" in page and "4 candidate(s) in the journal of 7 planned" in page
     assert "last line is cut" in page
@@ -104,6 +104,20 @@ def test_deleted_meshes_are_named_and_the_others_rendered(run_copy):
     (run_copy / gone.replace(".stl", ".obj")).unlink()
     proc = report(run_copy, "--html")
     assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"wrote {run_copy / 'report.html'}"
     page = (run_copy / "report.html").read_text()
     assert f"not shown: {gone}" in page
     assert set(meshes(page)) == {"nominal", *(f"rank{s['rank']}" for s in shapes[1:])}
+
+
+def test_without_a_renderer_the_page_says_why_in_one_line(run_copy, monkeypatch):
+    import grt.rerun
+
+    why = "no working renderer on this machine (RuntimeError: no Vulkan device)"
+    monkeypatch.setattr(grt.rerun, "renderer_problem", lambda: why)
+    summary = json.loads((run_copy / "summary.json").read_text())
+    index = grt.rerun.render_videos(run_copy, summary, 2)
+    assert index["skipped"] == why and index["pairs"] == []
+    write_report(run_copy)
+    page = (run_copy / "report.html").read_text()
+    assert f"<p class='warn'>No videos: {why}</p>" in page and "<video" not in page
