@@ -70,6 +70,9 @@ class BudgetSchema:
         top_k: CrashShapes saved in the run folder.
         confirm_trials: fresh episodes on which the nominal object and each CrashShape are scored again
             after the search, with a paired test of each drop (:mod:`grt.confirm`); 0 turns it off.
+        videos: CrashShapes whose failing trial (and the nominal object's on the same seed) are filmed
+            for ``report.html`` after the search (:mod:`grt.rerun`); 0 turns it off. ``report.videos``
+            of ``conf/run.yaml`` reads it.
     """
 
     population: int = _field(10, at_least(1), "candidates per iteration")
@@ -82,6 +85,7 @@ class BudgetSchema:
     top_k: int = _field(3, at_least(1), "CrashShapes saved in the run folder")
     confirm_trials: int = _field(0, at_least(0), "fresh episodes re-scoring the nominal object and each "
                                  "CrashShape after the search (0: off)")
+    videos: int = _field(3, at_least(0), "CrashShapes filmed for report.html after the search (0: off)")
 
 
 BUDGET_KEYS = tuple(f.name for f in fields(BudgetSchema))

@@ -56,10 +56,13 @@ FORMAT = 2
 # number of workers; loggers, the collision cache and Hydra's own files only record; the nominal floor only
 # decides whether the run goes on after S0), so a resumed run stays the run its journal was written by.
 RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra", "task.nominal_floor",
-               "budget.confirm_trials")
+               "budget.confirm_trials", "budget.videos", "report")
 # The parts of a resumed run's config taken from the command; all the rest is the run's saved config.
 FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths",
-                "task.nominal_floor", "budget.confirm_trials")
+                "task.nominal_floor", "budget.confirm_trials", "budget.videos", "report")
+# FROM_COMMAND keys a run saved before they existed takes from the command all the same: they only choose
+# what is made after the search (report.html's videos), never a result.
+AFTER_SEARCH = ("budget.videos", "report")
 RUN_FOLDERS = "outputs/<task>/<object>/<selector>-<optimizer>/<time>"
 # Targets renamed since format 1: the evaluators package was ``grt.eval`` (the alias package is gone).
 RENAMED_TARGETS = {"grt.eval.evaluator.SimEvaluator": "grt.evaluators.sim.SimEvaluator"}
@@ -338,7 +341,8 @@ def own_config(cfg: DictConfig) -> DictConfig:
     own = OmegaConf.create(OmegaConf.to_container(saved.config))
     for key in FROM_COMMAND:
         value = OmegaConf.select(cfg, key, default=_ABSENT)
-        if value is not _ABSENT and OmegaConf.select(own, key, default=_ABSENT) is not _ABSENT:
+        if value is not _ABSENT and (OmegaConf.select(own, key, default=_ABSENT) is not _ABSENT
+                                     or key in AFTER_SEARCH):
             OmegaConf.update(own, key, plain(value) if isinstance(value, DictConfig) else value, merge=False)
     own.resume = cfg.resume
     return own

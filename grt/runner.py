@@ -102,6 +102,7 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
                                 wall_s=time.perf_counter() - start, confirmation=confirmation, score=score)
         logger.log_summary(summary)
         logger.log_images({"curve": run_dir / "curve.png", "shapes": run_dir / "shapes.png"})
+        write_report(cfg, run_dir, summary, logger)
     finally:
         if bar is not None:
             bar.close()
@@ -109,6 +110,30 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
         logger.finish()
     print_summary(summary, run_dir)
     return summary
+
+
+def write_report(cfg: DictConfig, run_dir: Path, summary: dict, logger=None) -> None:
+    """Film the top CrashShapes' failing trials (``report.videos``; rendering only here, after the search)
+    and write ``report.html``. A report that fails is one warning: the run's results are already written."""
+    from omegaconf import OmegaConf
+
+    from grt.report.html import write_run_report
+    from grt.rerun import render_videos
+
+    start = time.perf_counter()
+    count = int(OmegaConf.select(cfg, "report.videos", default=0) or 0)
+    try:
+        index = render_videos(run_dir, summary, count) if count > 0 else None
+        if index and index.get("skipped"):
+            log.warning("report: no videos: %s", index["skipped"])
+        path = write_run_report(run_dir)
+    except Exception as exc:  # noqa: BLE001 - the run is done; say what failed and how to retry
+        log.warning("report.html not written (%s: %s); python -m grt.report %s --html retries it",
+                    type(exc).__name__, exc, shlex.quote(str(run_dir)))
+        return
+    if logger is not None and hasattr(logger, "log_report"):
+        logger.log_report(run_dir, summary, index)
+    print(f"report: {path} ({time.perf_counter() - start:.1f} s)", flush=True)
 
 
 class FoldingWatch:

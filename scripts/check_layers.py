@@ -38,11 +38,11 @@ LAYERS: dict[str, int] = {
     "grt.tasks": 6,
     "grt.evaluators": 7,
     "grt.journal": 8, "grt.redteam": 8, "grt.confirm": 8, "grt.outputs": 8, "grt.runfolder": 8,
-    "grt.loggers": 8, "grt.runner": 8, "grt.report": 8,
+    "grt.loggers": 8, "grt.runner": 8, "grt.report": 8, "grt.rerun": 8,
     "grt.rl": 9, "grt.blueteam": 9,
     "grt.bench": 10,
     "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11,
-    "grt.serve": 11,
+    "grt.serve": 11, "grt.replay": 11,
 }
 TOP = 11  # every ``__main__`` module (a ``python -m`` shim)
 

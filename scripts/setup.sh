@@ -94,4 +94,12 @@ else
   "$VENV/bin/python" -m pip install -q --no-deps "$CGN_SPEC"
   echo "$HASH" > "$STAMP"
 fi
+# Optional: Debian's Chromium, which the report's browser test (tests/report/test_browser.py) drives
+# headless; without it that test is skipped. Never fails the set-up.
+if [ "${GRT_SKIP_CHROMIUM:-0}" != 1 ] && ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  log "installing chromium (optional, for the report's browser test; GRT_SKIP_CHROMIUM=1 skips it)"
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  { $SUDO apt-get update -qq && $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } \
+    || log "chromium could not be installed: the browser test will be skipped"
+fi
 log "done: $("$VENV/bin/python" -c 'import torch, grt; print("torch", torch.__version__, "| grt", grt.__version__)')"

@@ -2,7 +2,8 @@
 
 ``--csv OUT.csv`` also writes the per-run rows; ``--markdown`` prints a folder's record (its run table and
 its blue-team ``table3*.json`` tables), ``--records`` adds the commit that wrote each summary, and
-``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
+``--html`` writes ``report.html`` (one self-contained page: a run folder's, or a sweep's linking each run's
+page), ``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
 (``python -m grt.report experiments --update-readmes``). A mistake (no such folder, no or a broken
 ``summary.json``, a ``--csv`` path that cannot be written) is one ``error:`` line and exit code 2.
 """
@@ -24,10 +25,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--markdown", action="store_true",
                     help="print the folder's record: run table and blue-team (table3*.json) tables")
     ap.add_argument("--records", action="store_true", help="with --markdown: the commit of every summary")
+    ap.add_argument("--html", action="store_true",
+                    help="write report.html: a run's page (3D CrashShapes, failure modes, videos) or a sweep's")
     ap.add_argument("--update-readmes", action="store_true",
                     help="rewrite the <!-- grt.report ... --> blocks of every README.md under PATH")
     args = ap.parse_args(argv)
     with exit_on_user_error(ReportError):
+        if args.html:
+            from grt.report.html import write_report
+
+            for out in write_report(args.path):
+                print(f"wrote {out}")
+            return
         if args.update_readmes:
             changed = update_readmes(args.path)
             print("\n".join(f"updated {p}" for p in changed) or f"every README.md under {args.path} is up to date")

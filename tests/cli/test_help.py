@@ -12,7 +12,8 @@ import pytest
 tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 
 ROOT = Path(__file__).resolve().parents[2]
-COMMANDS = ("run", "evaluate", "select", "deform", "bench", "objects", "report", "blueteam", "train", "serve")
+COMMANDS = ("run", "evaluate", "select", "deform", "bench", "objects", "report", "blueteam", "train", "serve",
+            "replay")
 
 
 def _cases(make) -> list:

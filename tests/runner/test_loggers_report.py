@@ -31,6 +31,33 @@ def test_wandb_offline_writes_locally_and_never_the_key(tmp_path, monkeypatch):
             assert secret.encode() not in f.read_bytes(), f
 
 
+def test_wandb_offline_logs_the_reports_crashshapes_table_and_videos(toy_run, tmp_path, monkeypatch):
+    import shutil
+
+    import numpy as np
+
+    from grt.rerun import write_video
+
+    monkeypatch.delenv("WANDB_MODE", raising=False)
+    run = tmp_path / "run"
+    shutil.copytree(toy_run, run)
+    summary = json.loads((run / "summary.json").read_text())
+    write_video([np.full((64, 64, 3), 9 * i, np.uint8) for i in range(20)], run / "videos" / "nominal_seed7.mp4")
+    videos = {"pairs": [{"title": "rank 1", "seed": 7, "clips": [
+        {"file": "nominal_seed7.mp4", "label": "nominal", "mode": "success"}]}]}
+    lg = WandbLogger(project="grt-test", mode="offline")
+    lg.start(tmp_path / "wb", name="t", config={})
+    lg.log_report(run, summary, videos)
+    lg.finish()
+    media = [p.relative_to(tmp_path).as_posix() for p in (tmp_path / "wb").rglob("media/**/*") if p.is_file()]
+    for kind, ext in (("videos", ".mp4"), ("object3D", ".stl"), ("table", ".json")):
+        assert any(f"/media/{kind}/" in p and p.endswith(ext) for p in media), (kind, ext, [p[-60:] for p in media])
+    table = json.loads(next((tmp_path / "wb").rglob("media/table/*.json")).read_text())
+    assert [row[0] for row in table["data"]] == [s["rank"] for s in summary["crashshapes"]]
+    assert "missed" in table["data"][0][5]
+    assert table["data"][0][7] == "Object3D"  # the shape as a point cloud coloured by displacement
+
+
 def test_wandb_mode_is_validated():
     with pytest.raises(ValueError, match="logger.mode"):
         WandbLogger(mode="sometimes")

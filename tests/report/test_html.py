@@ -1,0 +1,123 @@
+"""report.html of a run folder and of a sweep, and what it says about a damaged folder."""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from grt.report.html import write_report
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def report(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "grt.report", *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+
+
+def meshes(page: str) -> dict:
+    return json.loads(re.search(r"window\.GRT_MESHES = (\{.*?\});", page, re.S).group(1))
+
+
+def test_the_run_writes_a_self_contained_report(toy_run):
+    page = (toy_run / "report.html").read_text()
+    summary = json.loads((toy_run / "summary.json").read_text())
+    # nothing fetched from anywhere: no external script, stylesheet, image or font
+    assert not re.search(r"""(src|href)=['"](https?:)?//""", page)
+    assert page.count("function colormap") == 1, "the viewer is embedded once per page"
+    for metric in ("S0", "Final Drop", "Iter@50%", "AUC", "ΔComplexity", "Confirmed Final Drop", "Holm p"):
+        assert metric in page, metric
+    assert f"{100 * summary['final_drop']:.1f}" in page
+    assert summary["git"]["commit"] in page and summary["machine"]["python"] in page
+    assert "remeshed" in page  # the mesh-preparation record
+    assert "budget:" in page and "sigma: 0.06" in page  # the resolved config
+
+
+def test_crashshapes_are_embedded_with_their_displacement_in_mm(toy_run):
+    page = (toy_run / "report.html").read_text()
+    summary = json.loads((toy_run / "summary.json").read_text())
+    found = meshes(page)
+    assert set(found) == {"nominal"} | {f"rank{s['rank']}" for s in summary["crashshapes"]}
+    import trimesh
+
+    nominal = trimesh.load(toy_run / "nominal.obj", process=False, force="mesh")
+    shape = summary["crashshapes"][0]
+    mesh = trimesh.load(toy_run / shape["file"].replace(".stl", ".obj"), process=False, force="mesh")
+    disp = np.frombuffer(base64.b64decode(found["rank1"]["values"]), np.float32)
+    expected = 1000 * np.linalg.norm(mesh.vertices - nominal.vertices, axis=1)
+    assert np.allclose(disp, expected, atol=1e-3)
+    handles = json.loads((toy_run / "handles.json").read_text())["handles"]
+    assert found["rank1"]["handles"] == handles
+    assert f"href='{shape['file']}'" in page  # the printable STL
+
+
+def test_failure_modes_and_seeds_of_every_trial_are_shown(toy_run):
+    page = (toy_run / "report.html").read_text()
+    journal = [json.loads(line) for line in (toy_run / "journal.jsonl").read_text().splitlines()]
+    nominal = journal[0]
+    for t in nominal["trials"]:
+        assert f"<td>{t['seed']}</td>" in page
+    shape = json.loads((toy_run / "summary.json").read_text())["crashshapes"][0]
+    rec = next(r for r in journal if (r["iteration"], r["candidate"]) == (shape["iteration"], shape["candidate"]))
+    fails = sum(t["mode"] == "missed" for t in rec["trials"])
+    assert fails > 0, "the toy policy should fail on the rank-1 shape"
+    assert f"<title>missed: {fails} of {len(rec['trials'])}</title>" in page
+
+
+def test_a_sweep_page_links_each_runs_page(toy_run, tmp_path):
+    for name in ("a", "b"):
+        shutil.copytree(toy_run, tmp_path / "sweep" / name)
+    write_report(tmp_path / "sweep")
+    page = (tmp_path / "sweep" / "report.html").read_text()
+    assert "href='a/report.html'" in page and "href='b/report.html'" in page
+    assert (tmp_path / "sweep" / "a" / "report.html").is_file()
+
+
+def test_a_folder_that_is_not_a_run_is_one_line_and_exit_2(tmp_path):
+    proc = report(tmp_path, "--html")
+    assert proc.returncode == 2
+    assert proc.stderr.count("\n") == 1 and "not a GRT run" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_a_run_killed_mid_way_is_reported_as_partial(run_copy):
+    (run_copy / "summary.json").unlink()
+    lines = (run_copy / "journal.jsonl").read_text().splitlines(keepends=True)
+    (run_copy / "journal.jsonl").write_text("".join(lines[:4]) + lines[4][:30])  # killed while writing a line
+    write_report(run_copy)
+    page = (run_copy / "report.html").read_text()
+    assert "(partial)" in page and "4 candidate(s) in the journal of 7 planned" in page
+    assert "last line is cut" in page
+    assert (run_copy / "journal.jsonl").read_text().endswith(lines[4][:30]), "a report changes no run file"
+
+
+def test_deleted_meshes_are_named_and_the_others_rendered(run_copy):
+    shapes = json.loads((run_copy / "summary.json").read_text())["crashshapes"]
+    gone = shapes[0]["file"]
+    (run_copy / gone).unlink()
+    (run_copy / gone.replace(".stl", ".obj")).unlink()
+    proc = report(run_copy, "--html")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"wrote {run_copy / 'report.html'}"
+    page = (run_copy / "report.html").read_text()
+    assert f"not shown: {gone}" in page
+    assert set(meshes(page)) == {"nominal", *(f"rank{s['rank']}" for s in shapes[1:])}
+
+
+def test_without_a_renderer_the_page_says_why_in_one_line(run_copy, monkeypatch):
+    import grt.rerun
+
+    why = "no working renderer on this machine (RuntimeError: no Vulkan device)"
+    monkeypatch.setattr(grt.rerun, "renderer_problem", lambda: why)
+    summary = json.loads((run_copy / "summary.json").read_text())
+    index = grt.rerun.render_videos(run_copy, summary, 2)
+    assert index["skipped"] == why and index["pairs"] == []
+    write_report(run_copy)
+    page = (run_copy / "report.html").read_text()
+    assert f"<p class='warn'>No videos: {why}</p>" in page and "<video" not in page
