@@ -32,7 +32,7 @@ from grt.journal import Journal
 from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.runfolder import refuse_unless_run, save_run_config
-from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
+from grt.scores import ScoreSpec, check_nominal_floor, crash_margin, nominal_floor
 from grt.selectors.base import HandleSet
 from grt.tasks import preflight
 
@@ -46,6 +46,7 @@ def run(cfg: DictConfig) -> dict:
         refuse_unless_run(run_dir)
     score = ScoreSpec.from_task(cfg.task)  # a bad task.ci fails here, before any simulation
     floor = nominal_floor(cfg.task)
+    crash_margin(cfg.task)  # a bad task.crash_margin fails here, before any simulation
     run_dir.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     scale = cfg.object_scale  # a resumed run's saved config is migrated (grt.runfolder): the key is there
@@ -120,7 +121,7 @@ def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, ev
              score: ScoreSpec) -> dict | None:
     """Re-score the nominal object and the CrashShapes on fresh episodes (``budget.confirm_trials`` > 0)."""
     trials = int(cfg.budget.confirm_trials)
-    best = crash_records(result.records, cfg.budget.top_k)
+    best = crash_records(result.records, cfg.budget.top_k, result.s0, crash_margin(cfg.task))  # CrashShapes only
     if trials == 0 or not best:
         return None
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best]))
