@@ -21,6 +21,8 @@ from omegaconf import DictConfig
 from grt import metrics
 from grt.config import object_name
 from grt.fileio import atomic_path, write_text_atomic
+from grt.geometry.quality import shape_change
+from grt.optimizers.smoothness import budget_tau
 from grt.scores import ScoreSpec, crash_margin, is_crash
 
 
@@ -143,6 +145,12 @@ def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
             entry.unlink()
 
 
+def run_tau(cfg: DictConfig, mesh: trimesh.Trimesh) -> tuple[float | None, str]:
+    """A run's Smoothness-Score cap in meters (``budget.tau``, else ``budget.tau_rel`` x the object's diagonal)
+    and the sentence that says so; runs from before ``tau_rel`` have none."""
+    return budget_tau(cfg.budget.tau, cfg.budget.get("tau_rel"), float(np.linalg.norm(mesh.extents)))
+
+
 def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, evaluator, wall_s: float,
                   confirmation: dict | None = None) -> dict:
     """Compute the paper's metrics from the journal and write every artifact of the run.
@@ -174,7 +182,9 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "nominal_entropy": nominal.get("entropy"),
         "num_handles": int(len(handle_set.handles)), "num_anchors": int(len(handle_set.anchors)),
         "population": cfg.budget.population, "iterations": cfg.budget.iterations,
-        "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": cfg.budget.tau, "seed": cfg.budget.seed,
+        "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": run_tau(cfg, deformer.mesh)[0],
+        "tau_rel": cfg.budget.get("tau_rel") if cfg.budget.tau is None else None, "tau_how": run_tau(cfg, deformer.mesh)[1],
+        "seed": cfg.budget.seed,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
         "mesh_preparation": deformer.mesh.metadata.get("grt_prepare"),  # repairs, remesh, fidelity (mm)
@@ -183,6 +193,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "self_intersecting": sum(1 for r in records if r["iteration"] >= 1 and r.get("self_intersections", 0) > 0),
         # deformer.validity=false: nothing was checked, so the counts above are not "none refused"
         "validity_checked": any("valid" in r for r in records if r["iteration"] >= 1),
+        "max_volume_change": cfg.deformer.get("max_volume_change") if cfg.deformer.get("validity") else None,
     }
     if confirmation is not None:
         summary["confirm"] = confirmation
@@ -201,6 +212,8 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
     folder, other = ("crashshapes", "best") if crashes else ("best", "crashshapes")
     entries = save_crashshapes(run_dir, best, meshes, evaluator, folder=folder)
+    for entry, mesh in zip(entries, meshes, strict=True):  # how far each is from the nominal (issue 33 §4)
+        entry.update(shape_change(deformer.mesh, mesh))
     summary["crashshapes"] = entries if crashes else []
     if not crashes:
         summary["best_candidates"] = entries
@@ -299,6 +312,13 @@ def print_summary(summary: dict, run_dir: Path) -> None:
                       f"confirmed Final Drop (rank 1) {fmt(conf['confirmed_final_drop'], '{:.1%}')}, "
                       f"{conf['confirmed']}/{len(shapes)} drops significant at {conf['alpha']}\n  "
                       + "\n  ".join(lines))
+    shapes = summary.get("crashshapes") or summary.get("best_candidates") or []
+    if shapes and "volume_change" in shapes[0]:
+        console.print("shape change vs nominal: " + "; ".join(
+            f"rank {e['rank']}: volume {fmt(e['volume_change'], '{:+.1%}')}, max dihedral change "
+            f"{fmt(e['max_dihedral_change_deg'], '{:.0f}')}°" for e in shapes))
+    if summary.get("tau_how"):
+        console.print(f"Smoothness-Score cap: {summary['tau_how']}")
     found = summary.get("crashshape_found", True)
     where = f"CrashShapes: {run_dir / 'crashshapes'}" if found else \
         f"no CrashShape found; best candidates (not failures): {run_dir / 'best'}"

@@ -9,6 +9,7 @@ when ``budget.confirm_trials`` > 0 (:mod:`grt.confirm`) and writes the run folde
 
 from __future__ import annotations
 
+import functools
 import logging
 import shlex
 import time
@@ -29,7 +30,7 @@ from grt.geometry.prepare import MeshSettings
 from grt.geometry.prepare import describe as describe_preparation
 from grt.geometry.quality import candidate_validity
 from grt.journal import Journal
-from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
+from grt.outputs import crash_records, print_summary, run_tau, save_nominal, write_outputs
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.runfolder import refuse_unless_run, save_run_config
 from grt.scores import ScoreSpec, check_nominal_floor, crash_margin, nominal_floor
@@ -59,6 +60,8 @@ def run(cfg: DictConfig) -> dict:
     save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
     deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, **deformer_options(cfg.deformer))
     _announce_deformer(deformer)
+    tau, how = run_tau(cfg, mesh)
+    print(f"Smoothness-Score cap: {how}", flush=True)
     optimizer = instantiate(cfg.optimizer)(num_handles=len(handle_set.handles))
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     journal = Journal(run_dir / "journal.jsonl")
@@ -75,14 +78,14 @@ def run(cfg: DictConfig) -> dict:
     try:
         logger.start(run_dir, name=run_dir.name, config=plain(cfg))
         loop = RedTeamLoop(
-            deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
+            deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=tau,
             complexity=angular_deficit_entropy,
             on_candidate=lambda rec: _progress(bar, rec, score),
             on_iteration=lambda t, scores: (
                 logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
                 folding(t)),
             ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
-            validity=candidate_validity if cfg.deformer.validity else None)
+            validity=_validity(cfg))
         result = loop.run()
         bar.close()
         confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
@@ -96,6 +99,14 @@ def run(cfg: DictConfig) -> dict:
         logger.finish()
     print_summary(summary, run_dir)
     return summary
+
+
+def _validity(cfg: DictConfig):
+    """The plausibility check of the run's candidates (``deformer.validity``, ``deformer.max_volume_change``)."""
+    if not cfg.deformer.validity:
+        return None
+    bound = cfg.deformer.get("max_volume_change")
+    return candidate_validity if bound is None else functools.partial(candidate_validity, max_volume_change=bound)
 
 
 class FoldingWatch:
