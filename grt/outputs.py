@@ -299,7 +299,9 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     if tried and summary.get("validity_checked") is False:
         console.print("plausibility not checked (deformer.validity=false): folded candidates were simulated too")
     elif invalid:
-        console.print(f"implausible: {invalid} of {tried} candidates (self-intersecting or folded), not simulated")
+        why = "self-intersecting, folded" + (f" or volume changed > {summary['max_volume_change']:.0%}"
+                                             if summary.get("max_volume_change") is not None else "")
+        console.print(f"implausible: {invalid} of {tried} candidates ({why}), not simulated")
     if summary.get("note"):
         console.print(f"note: {summary['note']}", style="yellow", markup=False)
     conf = summary.get("confirm")
