@@ -133,6 +133,8 @@ def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, ev
     """Re-score the nominal object and the CrashShapes on fresh episodes (``budget.confirm_trials`` > 0)."""
     trials = int(cfg.budget.confirm_trials)
     best = crash_records(result.records, cfg.budget.top_k, result.s0, crash_margin(cfg.task))  # CrashShapes only
+    if trials and not best:
+        log.info("confirm: no CrashShape to re-score on fresh episodes (budget.confirm_trials=%d)", trials)
     if trials == 0 or not best:
         return None
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best]))
