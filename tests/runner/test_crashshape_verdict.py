@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.runner._toy_run import TOY
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -38,6 +40,7 @@ def test_a_zero_drop_run_names_no_crashshape_and_keeps_its_best_as_best(tmp_path
     assert report.returncode == 0 and "(no CrashShape)" in report.stdout
 
 
+@pytest.mark.slow
 def test_a_run_with_a_real_drop_keeps_its_crashshapes_and_only_those(tmp_path):
     run_dir = tmp_path / "drop"
     res = grt("grt.run", *SEARCH, "+evaluator.bar_mm=6", f"hydra.run.dir={run_dir}")

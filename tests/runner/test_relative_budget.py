@@ -45,6 +45,7 @@ def _run(tmp_path: Path, name: str, *extra: str) -> dict:
     return {"summary": json.loads((run_dir / "summary.json").read_text()), "stdout": res.stdout}
 
 
+@pytest.mark.slow  # two toy runs, ~40 s
 def test_the_relative_budget_bounds_the_volume_change_of_a_small_object(tmp_path):
     # the toy policy fails when the volume changes: the search looks for exactly what the cap must bound.
     # tau_rel alone (6.4 mm here) still let this adversary reach 13.7%: the plausibility check refuses what
