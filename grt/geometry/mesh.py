@@ -243,7 +243,8 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
     figures = fidelity.unchanged() if exact else fidelity.measure(solid.reference, out, mm_per_unit, volume)
     t3 = time.perf_counter()
     _check_fidelity(figures, settings, repairs, out, mm_per_unit,
-                    cause="remesh" if not solid.moved and not solid.must_remesh else "close", problems=problems)
+                    cause="remesh" if not solid.moved and not solid.must_remesh else "close", problems=problems,
+                    faces=len(mesh.faces))
     crossings = len(nominal_crossings(out))
     out.metadata["grt_repairs"] = repairs
     out.metadata["grt_prepare"] = {
@@ -286,7 +287,7 @@ def _accept(value: float) -> str:
 
 
 def _check_fidelity(figures: dict, settings, repairs: list[str], out: trimesh.Trimesh, mm_per_unit: float,
-                    cause: str = "close", problems: list[str] | None = None) -> None:
+                    cause: str = "close", problems: list[str] | None = None, faces: int = 0) -> None:
     """Refuse a prepared mesh further from its input than ``settings`` allow: one line naming the step that
     changed it (GRT's remeshing of a closed input, or the closing of an open one) and fixes that work."""
     ratio, dist = figures["volume_ratio"], figures["hausdorff_mm"]
@@ -312,8 +313,10 @@ def _check_fidelity(figures: dict, settings, repairs: list[str], out: trimesh.Tr
     if cause == "remesh":
         raise MeshError(f"GRT's own remeshing step changed the object more than allowed: {' and '.join(what)}; "
                         f"your mesh is closed and was kept as it is until that step. Steps: {steps}. Fix: set "
-                        f"mesh.remesh=off (GRT then uses your mesh's own triangles), or accept the change with "
-                        f"{' '.join(accept)}")
+                        f"mesh.remesh=off (GRT then uses your mesh's own triangles"
+                        + (f"; {faces} of them make every step slow: or decimate it to ~20000 faces in a modelling "
+                           "tool" if faces > 200_000 else "")
+                        + f"), or accept the change with {' '.join(accept)}")
     given = f" ({'; '.join(problems)})" if problems else ""
     if ratio < 0.5:  # a shell around an open sheet (an open cup), not the solid the user means
         raise MeshError(f"the input is not one closed solid{given}, and GRT could not close it into a solid: "
