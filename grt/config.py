@@ -66,7 +66,9 @@ class BudgetSchema:
         sigma: std of the Gaussian over handle displacements, unit-cube units (paper: 0.001).
         seed: seeds the optimizer and the episode seeds (paper: 42).
         workers: simulator worker processes.
-        tau: Smoothness-Score budget in meters (``None``: off).
+        tau: Smoothness-Score budget in meters (``None``: off, or ``tau_rel``'s).
+        tau_rel: the budget relative to the object: a fraction of its bounding-box diagonal, converted to
+            meters per object (:func:`grt.optimizers.smoothness.budget_tau`); used when ``tau`` is ``None``.
         top_k: CrashShapes saved in the run folder.
         confirm_trials: fresh episodes on which the nominal object and each CrashShape are scored again
             after the search, with a paired test of each drop (:mod:`grt.confirm`); 0 turns it off.
@@ -82,6 +84,8 @@ class BudgetSchema:
     seed: int = _field(42, at_least(0), "seed of the optimizer and of the episode seeds")
     workers: int = _field(2, at_least(1), "simulator worker processes")
     tau: float | None = _field(None, POSITIVE_OR_NULL, "Smoothness-Score budget in meters")
+    tau_rel: float | None = _field(None, POSITIVE_OR_NULL, "Smoothness-Score budget as a fraction of the object's "
+                                   "bounding-box diagonal (used when budget.tau is null)")
     top_k: int = _field(3, at_least(1), "CrashShapes saved in the run folder")
     confirm_trials: int = _field(0, at_least(0), "fresh episodes re-scoring the nominal object and each "
                                  "CrashShape after the search (0: off)")

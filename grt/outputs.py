@@ -22,7 +22,9 @@ from grt import metrics
 from grt.config import object_name
 from grt.console import console as wide_console
 from grt.fileio import atomic_path, write_text_atomic
-from grt.scores import ScoreSpec
+from grt.geometry.quality import shape_change
+from grt.optimizers.smoothness import budget_tau
+from grt.scores import ScoreSpec, crash_margin, is_crash
 
 
 def git_state() -> dict:
@@ -90,19 +92,24 @@ _CRASHSHAPE = re.compile(rf"rank\d+_it\d+_c\d+(\.stl|\.obj|_parts)|{_TEMP}")
 _PART = re.compile(rf"part\d+\.obj|{_TEMP}")
 
 
-def crash_records(records: list[dict], k: int) -> list[dict]:
-    """The ``k`` lowest-scoring explored candidates (iterations >= 1), earliest first among ties."""
+def crash_records(records: list[dict], k: int, s0: float | None = None, margin: float = 0.0) -> list[dict]:
+    """The ``k`` lowest-scoring explored candidates (iterations >= 1), earliest first among ties; with ``s0``,
+    only the CrashShapes among them: those below ``s0`` by ``margin`` of it (:func:`grt.scores.is_crash`)."""
     explored = [r for r in records if r["iteration"] >= 1 and r["score"] == r["score"]]  # not NaN
+    if s0 is not None:
+        explored = [r for r in explored if is_crash(r["score"], s0, margin)]
     return sorted(explored, key=lambda r: (r["score"], r["iteration"], r["candidate"]))[:k]
 
 
-def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], evaluator) -> list[dict]:
+def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], evaluator,
+                     folder: str = "crashshapes") -> list[dict]:
     """Write each CrashShape in meters (watertight STL + OBJ, and the convex parts it was simulated with).
 
-    CrashShape files in ``crashshapes/`` that this call did not write (an earlier writing's ranks) are
-    removed afterwards, so the folder always matches ``summary.json``.
+    CrashShape files in ``folder`` (``crashshapes/``; ``best/`` for the best candidates of a run that found
+    no CrashShape) that this call did not write (an earlier writing's ranks) are removed afterwards, so the
+    folder always matches ``summary.json``.
     """
-    out = run_dir / "crashshapes"
+    out = run_dir / folder
     out.mkdir(exist_ok=True)
     saved, written = [], set()
     for rank, (rec, mesh) in enumerate(zip(best, meshes, strict=True), start=1):
@@ -110,7 +117,7 @@ def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trime
         for ext in ("stl", "obj"):
             with atomic_path(out / f"{stem}.{ext}") as tmp:
                 mesh.export(tmp, file_type=ext)
-        entry = {"rank": rank, "file": f"crashshapes/{stem}.stl", "score": rec["score"],
+        entry = {"rank": rank, "file": f"{folder}/{stem}.stl", "score": rec["score"],
                  "iteration": rec["iteration"], "candidate": rec["candidate"],
                  "watertight": bool(mesh.is_watertight), "smoothness_m": rec.get("smoothness_m")}
         parts_dir = out / f"{stem}_parts"
@@ -121,7 +128,7 @@ def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trime
                 trimesh.convex.convex_hull(verts).export(tmp, file_type="obj")
             parts.add(f"part{j:02d}.obj")
         _remove_except(parts_dir, parts, _PART)
-        entry["parts"] = f"crashshapes/{stem}_parts"
+        entry["parts"] = f"{folder}/{stem}_parts"
         saved.append(entry)
         written |= {f"{stem}.stl", f"{stem}.obj", f"{stem}_parts"}
     _remove_except(out, written, _CRASHSHAPE)
@@ -137,6 +144,12 @@ def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
             shutil.rmtree(entry)
         else:
             entry.unlink()
+
+
+def run_tau(cfg: DictConfig, mesh: trimesh.Trimesh) -> tuple[float | None, str]:
+    """A run's Smoothness-Score cap in meters (``budget.tau``, else ``budget.tau_rel`` x the object's diagonal)
+    and the sentence that says so; runs from before ``tau_rel`` have none."""
+    return budget_tau(cfg.budget.tau, cfg.budget.get("tau_rel"), float(np.linalg.norm(mesh.extents)))
 
 
 def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, evaluator, wall_s: float,
@@ -156,12 +169,15 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     nominal = next(r for r in records if r["iteration"] == 0)
     summ = metrics.summarize(result.s0, result.iteration_scores)
     explored = [(r["score"], r["entropy"]) for r in records if r["iteration"] >= 1 and r["entropy"] is not None]
-    best = crash_records(records, cfg.budget.top_k)
+    margin = crash_margin(cfg.task)
+    crashes = crash_records(records, cfg.budget.top_k, result.s0, margin)
+    best = crashes or crash_records(records, cfg.budget.top_k)  # none failed: the best candidates, named so
     summary = {
         "task": cfg.task.name, "object": object_name(cfg.object), "object_spec": str(cfg.object),
         "selector": _choice(cfg, "selector"), "optimizer": _choice(cfg, "optimizer"),
         "policy": _choice(cfg, "policy"), **score.fields(),
         "s0": result.s0, "s0_ci95": nominal.get("ci95"),
+        "crash_margin": margin, "crashshape_found": bool(crashes),
         "best_score": best[0]["score"] if best else None, "best_ci95": best[0].get("ci95") if best else None,
         **summ,
         "delta_complexity": metrics.delta_complexity(nominal["entropy"], explored)
@@ -169,7 +185,9 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "nominal_entropy": nominal.get("entropy"),
         "num_handles": int(len(handle_set.handles)), "num_anchors": int(len(handle_set.anchors)),
         "population": cfg.budget.population, "iterations": cfg.budget.iterations,
-        "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": cfg.budget.tau, "seed": cfg.budget.seed,
+        "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": run_tau(cfg, deformer.mesh)[0],
+        "tau_rel": cfg.budget.get("tau_rel") if cfg.budget.tau is None else None, "tau_how": run_tau(cfg, deformer.mesh)[1],
+        "seed": cfg.budget.seed,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
         "workers": getattr(evaluator, "worker_limits", None),  # requested, used (bounded by cores, memory)
@@ -179,6 +197,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "self_intersecting": sum(1 for r in records if r["iteration"] >= 1 and r.get("self_intersections", 0) > 0),
         # deformer.validity=false: nothing was checked, so the counts above are not "none refused"
         "validity_checked": any("valid" in r for r in records if r["iteration"] >= 1),
+        "max_volume_change": cfg.deformer.get("max_volume_change") if cfg.deformer.get("validity") else None,
     }
     if confirmation is not None:
         summary["confirm"] = confirmation
@@ -190,23 +209,39 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     tried = sum(1 for r in records if r["iteration"] >= 1)
     if tried and summary["invalid_candidates"] == tried:
         notes.append(implausible_note(tried, len(handle_set.handles), cfg.budget.sigma))
+    if not crashes:
+        notes.append(no_crashshape_note(margin, len(best)))
     if notes:
         summary["note"] = "; ".join(notes)
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
-    summary["crashshapes"] = save_crashshapes(run_dir, best, meshes, evaluator)
+    folder, other = ("crashshapes", "best") if crashes else ("best", "crashshapes")
+    entries = save_crashshapes(run_dir, best, meshes, evaluator, folder=folder)
+    for entry, mesh in zip(entries, meshes, strict=True):  # how far each is from the nominal (issue 33 §4)
+        entry.update(shape_change(deformer.mesh, mesh))
+    summary["crashshapes"] = entries if crashes else []
+    if not crashes:
+        summary["best_candidates"] = entries
+    if (run_dir / other).is_dir():  # a resumed run whose verdict changed: its other folder's shapes go
+        _remove_except(run_dir / other, set(), _CRASHSHAPE)
     # The handle/anchor sets travel with the shapes (indices into every CrashShape's vertices).
-    write_text_atomic(run_dir / "crashshapes" / "handles.json", handle_set.to_json())
+    write_text_atomic(run_dir / folder / "handles.json", handle_set.to_json())
     title = f"{summary['task']} / {summary['object']} / {summary['selector']}-{summary['optimizer']}"
     with atomic_path(run_dir / "curve.png") as tmp:
         plot_curve(result.s0, result.iteration_scores, tmp, title=title, score=score)
     fresh = {(c["iteration"], c["candidate"]): c for c in (confirmation or {}).get("shapes", [])}
-    shapes = [(m, f"it {r['iteration']}: {score.title} {score.fmt(r['score'], unit=True)}"
-                  + _fresh_label(fresh.get((r["iteration"], r["candidate"])), score))
+    shapes = [(m, f"{'' if crashes else 'best (no CrashShape) '}it {r['iteration']}: {score.title} "
+                  f"{score.fmt(r['score'], unit=True)}" + _fresh_label(fresh.get((r["iteration"], r["candidate"])), score))
               for r, m in zip(best, meshes, strict=True)]
     with atomic_path(run_dir / "shapes.png") as tmp:
         plot_shapes(deformer.mesh, shapes, tmp, handles=handle_set.handles)
     write_text_atomic(run_dir / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
     return summary
+
+
+def no_crashshape_note(margin: float, kept: int) -> str:
+    """What a run that found no failure says, and where its best candidates are."""
+    return (f"no CrashShape found: no candidate scored below S0 by task.crash_margin={margin:g} ({margin:.0%} of "
+            f"S0)" + (f"; the {kept} best candidates are kept in best/ (not failures)" if kept else ""))
 
 
 def implausible_note(candidates: int, handles: int, sigma: float) -> str:
@@ -267,7 +302,9 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     if tried and summary.get("validity_checked") is False:
         console.print("plausibility not checked (deformer.validity=false): folded candidates were simulated too")
     elif invalid:
-        console.print(f"implausible: {invalid} of {tried} candidates (self-intersecting or folded), not simulated")
+        why = "self-intersecting, folded" + (f" or volume changed > {summary['max_volume_change']:.0%}"
+                                             if summary.get("max_volume_change") is not None else "")
+        console.print(f"implausible: {invalid} of {tried} candidates ({why}), not simulated")
     if summary.get("note"):
         console.print(f"note: {summary['note']}", style="yellow", markup=False)
     conf = summary.get("confirm")
@@ -280,5 +317,15 @@ def print_summary(summary: dict, run_dir: Path) -> None:
                       f"confirmed Final Drop (rank 1) {fmt(conf['confirmed_final_drop'], '{:.1%}')}, "
                       f"{conf['confirmed']}/{len(shapes)} drops significant at {conf['alpha']}\n  "
                       + "\n  ".join(lines))
+    shapes = summary.get("crashshapes") or summary.get("best_candidates") or []
+    if shapes and "volume_change" in shapes[0]:
+        console.print("shape change vs nominal: " + "; ".join(
+            f"rank {e['rank']}: volume {fmt(e['volume_change'], '{:+.1%}')}, max dihedral change "
+            f"{fmt(e['max_dihedral_change_deg'], '{:.0f}')}°" for e in shapes))
+    if summary.get("tau_how"):
+        console.print(f"Smoothness-Score cap: {summary['tau_how']}")
+    found = summary.get("crashshape_found", True)
+    where = f"CrashShapes: {run_dir / 'crashshapes'}" if found else \
+        f"no CrashShape found; best candidates (not failures): {run_dir / 'best'}"
     console.print(f"run folder: {run_dir}\n  curve: {run_dir / 'curve.png'}\n  shapes: {run_dir / 'shapes.png'}"
-                  f"\n  CrashShapes: {run_dir / 'crashshapes'}")
+                  f"\n  {where}")

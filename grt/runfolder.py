@@ -70,6 +70,8 @@ RENAMED_TARGETS = {"grt.eval.evaluator.SimEvaluator": "grt.evaluators.sim.SimEva
 ADDED_DEFAULTS = {"object_scale": 1.0, "mesh": {}, "budget.confirm_trials": 0,
                   "deformer.lam": 1.0, "deformer.method": "exact", "deformer.radius": DEFAULT_RADIUS,
                   "deformer.validity": False}
+# Keys added within format 2 (issue 33): a run made before them ran without them.
+ADDED_IN_FORMAT2 = {"budget.tau_rel": None, "deformer.max_volume_change": None}
 _ABSENT = object()
 
 
@@ -194,6 +196,8 @@ def migrate(cfg: DictConfig, version: int) -> DictConfig:
         for key, value in ADDED_DEFAULTS.items():
             _set_absent(data, key, value)
         _set_absent(data, "task.nominal_floor", _floor(data))
+    for key, value in ADDED_IN_FORMAT2.items():
+        _set_absent(data, key, value)
     return OmegaConf.create(data)
 
 

@@ -9,6 +9,7 @@ when ``budget.confirm_trials`` > 0 (:mod:`grt.confirm`) and writes the run folde
 
 from __future__ import annotations
 
+import functools
 import logging
 import shlex
 import time
@@ -29,11 +30,11 @@ from grt.geometry.prepare import MeshSettings
 from grt.geometry.prepare import describe as describe_preparation
 from grt.geometry.quality import candidate_validity
 from grt.journal import Journal
-from grt.outputs import crash_records, print_summary, save_nominal, write_outputs
+from grt.outputs import crash_records, print_summary, run_tau, save_nominal, write_outputs
 from grt.policies.base import PolicyServerError
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.runfolder import locked, refuse_unless_run, save_run_config, without_secrets
-from grt.scores import ScoreSpec, check_nominal_floor, nominal_floor
+from grt.scores import ScoreSpec, check_nominal_floor, crash_margin, nominal_floor
 from grt.selectors.base import HandleSet
 from grt.tasks import preflight
 
@@ -47,6 +48,7 @@ def run(cfg: DictConfig) -> dict:
         refuse_unless_run(run_dir)
     score = ScoreSpec.from_task(cfg.task)  # a bad task.ci fails here, before any simulation
     floor = nominal_floor(cfg.task)
+    crash_margin(cfg.task)  # a bad task.crash_margin fails here, before any simulation
     run_dir.mkdir(parents=True, exist_ok=True)
     with locked(run_dir):  # one process per run folder (grt.run's callback took it before Hydra wrote there)
         return _run(cfg, run_dir, score, floor)
@@ -64,6 +66,8 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
     save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
     deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, **deformer_options(cfg.deformer))
     _announce_deformer(deformer)
+    tau, how = run_tau(cfg, mesh)
+    print(f"Smoothness-Score cap: {how}", flush=True)
     optimizer = instantiate(cfg.optimizer)(num_handles=len(handle_set.handles))
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     journal = Journal(run_dir / "journal.jsonl")
@@ -83,14 +87,14 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
             evaluator.start()  # one line, then the workers' start-up, outside the bar's rate and ETA
         bar = progress(total, "red-team", "cand", initial=len(journal))
         loop = RedTeamLoop(
-            deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=cfg.budget.tau,
+            deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=tau,
             complexity=angular_deficit_entropy,
             on_candidate=lambda rec: _progress(bar, rec, score),
             on_iteration=lambda t, scores: (
                 logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
                 folding(t)),
             ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
-            validity=candidate_validity if cfg.deformer.validity else None)
+            validity=_validity(cfg))
         try:
             result = loop.run()
             bar.close()
@@ -136,6 +140,14 @@ def write_report(cfg: DictConfig, run_dir: Path, summary: dict, logger=None) -> 
     print(f"report: {path} ({time.perf_counter() - start:.1f} s)", flush=True)
 
 
+def _validity(cfg: DictConfig):
+    """The plausibility check of the run's candidates (``deformer.validity``, ``deformer.max_volume_change``)."""
+    if not cfg.deformer.validity:
+        return None
+    bound = cfg.deformer.get("max_volume_change")
+    return candidate_validity if bound is None else functools.partial(candidate_validity, max_volume_change=bound)
+
+
 class FoldingWatch:
     """Warns once, at the first iteration whose candidates the validity checks all refused, that the
     search cannot move: a long run should not find that out only at its end."""
@@ -159,7 +171,9 @@ def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, ev
              score: ScoreSpec) -> dict | None:
     """Re-score the nominal object and the CrashShapes on fresh episodes (``budget.confirm_trials`` > 0)."""
     trials = int(cfg.budget.confirm_trials)
-    best = crash_records(result.records, cfg.budget.top_k)
+    best = crash_records(result.records, cfg.budget.top_k, result.s0, crash_margin(cfg.task))  # CrashShapes only
+    if trials and not best:
+        log.info("confirm: no CrashShape to re-score on fresh episodes (budget.confirm_trials=%d)", trials)
     if trials == 0 or not best:
         return None
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best]))

@@ -34,6 +34,8 @@ from grt.metrics import CI_METHODS
 
 # The paper keeps the objects the policy grasps in at least 25% of the nominal trials.
 BINARY_FLOOR = 0.25
+# A CrashShape scores at least this fraction of S0 below S0 (a drop of 10% or more); see crash_margin.
+CRASH_MARGIN = 0.1
 
 
 class ScoreConfigError(UserError):
@@ -125,6 +127,25 @@ def nominal_floor(task: Mapping | None) -> float | None:
         raise ScoreConfigError(f"task.nominal_floor={value!r}: give a number in the task's score unit, or null "
                                "to turn the floor off")
     return float(value)
+
+
+def crash_margin(task: Mapping | None) -> float:
+    """The task's ``crash_margin``: the least relative drop ``(S0 - score) / S0`` that makes a candidate a
+    CrashShape (absent: :data:`CRASH_MARGIN`). A candidate that scores as the nominal object did is no failure.
+
+    Raises:
+        ScoreConfigError: a value that is not a number in [0, 1).
+    """
+    value = (task if task is not None else {}).get("crash_margin", CRASH_MARGIN)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1:
+        raise ScoreConfigError(f"task.crash_margin={value!r}: give the least drop below S0 that makes a CrashShape, "
+                               "as a fraction of S0 in [0, 1) (0.1: 10%)")
+    return float(value)
+
+
+def is_crash(score: float, s0: float, margin: float) -> bool:
+    """Whether a candidate's ``score`` is below ``s0`` by ``margin`` of ``s0`` (never when S0 <= 0 or NaN)."""
+    return bool(s0 > 0 and score == score and score < s0 and (s0 - score) / s0 >= margin - 1e-12)
 
 
 def check_nominal_floor(s0: float, floor: float | None, spec: ScoreSpec, run_dir: str | None = None) -> None:

@@ -19,7 +19,7 @@ import trimesh
 
 from grt.geometry import fidelity
 from grt.geometry.indices import file_vertices
-from grt.geometry.prepare import MeshSettings, Solid, remesh, remesh_decision, solidify
+from grt.geometry.prepare import MeshSettings, Solid, fix_flat_faces, remesh, remesh_decision, solidify
 from grt.geometry.quality import nominal_crossings
 from grt.geometry.validation import MeshError, mesh_problems
 from grt.objects import UnknownObjectError, get_object, list_objects
@@ -223,6 +223,7 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
     if not np.all(np.isfinite(mesh.vertices)):
         raise MeshError("the mesh has NaN or infinite vertex coordinates; it cannot be repaired "
                         "automatically. Re-export it from your modelling tool.")
+    _check_has_volume(mesh)
     t0 = time.perf_counter()
     repairs: list[str] = []
     out = trimesh.Trimesh(vertices=np.array(mesh.vertices, np.float64), faces=np.array(mesh.faces),
@@ -240,7 +241,9 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
     t1 = time.perf_counter()
     remeshed, decision = remesh_decision(out, settings, edge, builtin, solid.must_remesh)
     if remeshed:
-        out = remesh(out, edge, repairs)
+        avoid = ("set mesh.remesh=off: your mesh is closed and is then used as it is" if not solid.moved
+                 and not solid.must_remesh else "close the mesh in a modelling tool, or set another mesh.edge_length")
+        out = remesh(out, edge, repairs, fix=avoid)
     remaining = mesh_problems(out)
     if settings.components == "keep":
         remaining = [p for p in remaining if "connected components" not in p]
@@ -250,10 +253,12 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
                         "Blender's 3D-print toolbox) and load it again.")
     t2 = time.perf_counter()
     exact = not (solid.moved or remeshed)
-    figures = fidelity.unchanged() if exact else fidelity.measure(solid.reference, out, mm_per_unit,
-                                                                  solid.reference_volume)
+    volume = solid.reference_volume if solid.reference_volume is not None else _closed_volume(mesh)
+    figures = fidelity.unchanged() if exact else fidelity.measure(solid.reference, out, mm_per_unit, volume)
     t3 = time.perf_counter()
-    _check_fidelity(figures, settings, repairs, out, mm_per_unit)
+    _check_fidelity(figures, settings, repairs, out, mm_per_unit,
+                    cause="remesh" if not solid.moved and not solid.must_remesh else "close", problems=problems,
+                    faces=len(mesh.faces))
     crossings = len(nominal_crossings(out))
     out.metadata["grt_repairs"] = repairs
     out.metadata["grt_prepare"] = {
@@ -269,27 +274,72 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
     return out
 
 
-def _check_fidelity(figures: dict, settings, repairs: list[str], out: trimesh.Trimesh, mm_per_unit: float) -> None:
-    """Refuse a prepared mesh further from its input than ``settings`` allow (one line: what and how to fix)."""
+def _check_has_volume(mesh: trimesh.Trimesh) -> None:
+    """Refuse a flat input (every vertex in one plane: a single triangle, a sheet): it encloses no volume."""
+    v = np.asarray(mesh.vertices, np.float64)
+    sv = np.linalg.svd(v - v.mean(0), compute_uv=False) if len(v) >= 3 else np.zeros(3)
+    if len(sv) < 3 or sv[2] <= 1e-9 * max(sv[0], 1e-300):
+        raise MeshError(f"the mesh has no volume: all its {len(v)} vertices ({len(mesh.faces)} faces) lie in one "
+                        f"{'line' if len(sv) < 2 or sv[1] <= 1e-9 * max(sv[0], 1e-300) else 'plane'} (a flat sheet). "
+                        "GRT deforms solid objects: give a closed mesh of the whole object")
+
+
+def _closed_volume(mesh: trimesh.Trimesh) -> float | None:
+    """The exact enclosed volume of the input as given when it is closed (duplicate vertices merged; zero-area
+    faces add nothing), else None (the fidelity then estimates it and says so)."""
+    merged = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces), process=False)
+    merged.merge_vertices()
+    if merged.is_watertight and merged.is_winding_consistent:
+        return abs(float(merged.volume))
+    return None
+
+
+def _accept(value: float) -> str:
+    """A setting value just above a measured ``value`` (two significant digits, rounded up)."""
+    digits = 10.0 ** (np.floor(np.log10(value)) - 1) if value > 0 else 1.0
+    return f"{np.ceil(value * 1.02 / digits) * digits:.2g}"
+
+
+def _check_fidelity(figures: dict, settings, repairs: list[str], out: trimesh.Trimesh, mm_per_unit: float,
+                    cause: str = "close", problems: list[str] | None = None, faces: int = 0) -> None:
+    """Refuse a prepared mesh further from its input than ``settings`` allow: one line naming the step that
+    changed it (GRT's remeshing of a closed input, or the closing of an open one) and fixes that work."""
     ratio, dist = figures["volume_ratio"], figures["hausdorff_mm"]
+    if not np.isfinite(ratio):
+        raise MeshError("the input encloses no volume (an open sheet, or a surface without inside): GRT deforms "
+                        "solid objects: give a closed mesh of the whole object")
     far, swollen = dist > settings.fidelity_mm, not abs(ratio - 1.0) <= settings.volume_tol
     if not (far or swollen):
         return
     scaled = out.copy()
     scaled.vertices = np.asarray(scaled.vertices) * (mm_per_unit / 1000.0)
     check_object_size(scaled)  # a unit mistake is the likelier cause (and its figures are 1000x off)
-    what = []
+    what, accept = [], []
     if far:
         what.append(f"the surface moved up to {dist:.3g} mm (mesh.fidelity_mm={settings.fidelity_mm:g})")
+        accept.append(f"mesh.fidelity_mm={_accept(dist)}")
     if swollen:
-        what.append(f"the volume changed x{ratio:.3f} (mesh.volume_tol={settings.volume_tol:g})")
+        estimate = " (an estimate: the input is open, its volume is measured on a winding-number grid)" \
+            if figures.get("volume_estimated") else ""
+        what.append(f"the volume changed x{ratio:.3f}{estimate} (mesh.volume_tol={settings.volume_tol:g})")
+        accept.append(f"mesh.volume_tol={_accept(abs(ratio - 1.0))}")
     steps = "; ".join(repairs) or "none"
-    remeshed = any(r.startswith("remeshed") for r in repairs)
-    fix = ("repair or close the mesh in a modelling tool (MeshLab, Blender's 3D-print toolbox)"
-           + (f", or remesh finer (mesh.edge_length below {settings.edge_length:g})" if remeshed else "")
-           + ", or accept the change with a larger mesh.fidelity_mm / mesh.volume_tol")
-    raise MeshError(f"preparing the mesh changed the object more than allowed: {' and '.join(what)}. "
-                    f"Steps: {steps}. Fix: {fix}")
+    if cause == "remesh":
+        raise MeshError(f"GRT's own remeshing step changed the object more than allowed: {' and '.join(what)}; "
+                        f"your mesh is closed and was kept as it is until that step. Steps: {steps}. Fix: set "
+                        f"mesh.remesh=off (GRT then uses your mesh's own triangles"
+                        + (f"; {faces} of them make every step slow: or decimate it to ~20000 faces in a modelling "
+                           "tool" if faces > 200_000 else "")
+                        + f"), or accept the change with {' '.join(accept)}")
+    given = f" ({'; '.join(problems)})" if problems else ""
+    if ratio < 0.5:  # a shell around an open sheet (an open cup), not the solid the user means
+        raise MeshError(f"the input is not one closed solid{given}, and GRT could not close it into a solid: "
+                        f"{' and '.join(what)}. Steps: {steps}. Fix: close the mesh in a modelling tool (MeshLab: "
+                        "Close Holes; Blender's 3D-print toolbox) so GRT uses it as it is")
+    raise MeshError(f"the input is not one closed solid{given}, and closing it changed the object more than allowed: "
+                    f"{' and '.join(what)}. Steps: {steps}. Fix: close the mesh in a modelling tool (MeshLab: "
+                    f"Close Holes; Blender's 3D-print toolbox) so GRT uses it as it is, or accept the change with "
+                    f"{' '.join(accept)}")
 
 
 def _basic_cleanup(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
@@ -301,6 +351,7 @@ def _basic_cleanup(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh
     mesh.merge_vertices()
     if len(mesh.vertices) < n_v:
         repairs.append(f"merged {n_v - len(mesh.vertices)} duplicate vertices")
+    mesh = _collapse_flat_faces(mesh, repairs)
     keep = mesh.nondegenerate_faces(height=1e-12)
     mesh.update_faces(keep)
     mesh.update_faces(mesh.unique_faces())
@@ -311,6 +362,25 @@ def _basic_cleanup(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh
     if len(mesh.vertices) < n_v:
         repairs.append(f"removed {n_v - len(mesh.vertices)} vertices of removed faces")
     return mesh
+
+
+def _collapse_flat_faces(mesh: trimesh.Trimesh, repairs: list[str]) -> trimesh.Trimesh:
+    """A closed surface's zero-area faces are part of its closure (a T-junction along a seam): collapse them
+    in place (:func:`grt.geometry.prepare.fix_flat_faces`) instead of deleting them, which would open it."""
+    flat = int(len(mesh.faces) - mesh.nondegenerate_faces(height=1e-12).sum())
+    if not flat or not mesh.is_watertight:
+        return mesh
+    fixed = fix_flat_faces(mesh)
+    left = fixed.metadata.pop("grt_flat_faces_left")
+    fixed.metadata.pop("grt_flat_faces_fixed")
+    moved = fixed.metadata.pop("grt_flat_faces_moved")
+    if not fixed.is_watertight or left == flat:
+        return mesh  # nothing gained: the zero-area faces are removed below and the surface closed again
+    how = (f"vertices moved up to {moved:.3g} mesh units along their edges" if moved > 0
+           else "the surface did not move")
+    repairs.append(f"collapsed {flat - left} of {flat} zero-area faces of the closed surface in place (coincident "
+                   f"vertices merged, faces lying along a neighbour's edge flipped into it): {how}, and it stays closed")
+    return fixed
 
 
 def mesh_hash(vertices: np.ndarray, faces: np.ndarray) -> str:

@@ -45,6 +45,7 @@ REMESH_ITERATIONS = 10
 SLIVER_ASPECT, SLIVER_SHARE = 10.0, 0.01
 JOIN_GROWTH = 0.1  # bodies closer than 2x this times the target edge are joined
 CREASE_DEG = 30.0  # dihedral angle of a sharp edge kept by the remeshing
+DECIMATE_VOLUME_TOL = 0.005  # a decimation stage that changes the volume by more than 0.5% is not kept
 
 
 @dataclass(frozen=True)
@@ -171,7 +172,7 @@ def solidify(mesh: trimesh.Trimesh, components: str, repairs: list[str], edge: f
     for count, what in ((rewound, "made face winding consistent"), (inverted, "flipped inward-facing normals")):
         if count:
             repairs.append(what + (f" on {count} of {len(parts)} bodies" if len(parts) > 1 else ""))
-    moved = any(r.startswith("filled") for r in repairs)
+    moved = any(r.startswith("filled") or "moved up to" in r for r in repairs)
     if all(_closed(p) for p in parts):
         if len(parts) == 1 or components == "keep":
             joined = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
@@ -318,48 +319,93 @@ def crease_vertices(mesh: trimesh.Trimesh, angle_deg: float = CREASE_DEG) -> np.
     return np.unique(sharp).astype(np.int32)
 
 
-def remesh(mesh: trimesh.Trimesh, edge: float, repairs: list[str]) -> trimesh.Trimesh:
-    """Isotropic remeshing to edge length ``edge`` (mesh units).
+def decimate(mesh: trimesh.Trimesh, faces: int, repairs: list[str]) -> trimesh.Trimesh:
+    """Quadric decimation of a closed ``mesh`` towards ``faces`` faces, in halving stages that keep its volume.
 
-    A very fine input is decimated first (quadric, to twice the target's face count); a coarser input is
-    first split flat to edges <= ``edge`` (the surface does not move) and its crease vertices are kept
-    fixed, so that the remeshing keeps sharp edges and corners instead of cutting them.
+    One aggressive pass can collapse whole regions (a 1.5 M-face UV sphere, whose poles are 1000-triangle
+    fans, shrank to 0.56 of its volume). Each stage halves the face count and is kept only while the mesh
+    stays closed and its volume within ``DECIMATE_VOLUME_TOL`` of the input's; the remeshing then starts
+    from the last good stage (more faces, slower, but the same object). What happened is recorded.
+    """
+    volume = abs(float(mesh.volume))
+    current, stop = mesh, ""
+    while len(current.faces) > faces:
+        step = current.simplify_quadric_decimation(face_count=max(faces, len(current.faces) // 2))
+        ratio = abs(float(step.volume)) / volume if volume > 0 else float("nan")
+        if not _closed(step):
+            stop = f"the next stage ({len(step.faces)} faces) opened the surface"
+        elif not abs(ratio - 1.0) <= DECIMATE_VOLUME_TOL:
+            stop = f"the next stage ({len(step.faces)} faces) changed the volume x{ratio:.3f}"
+        elif len(step.faces) > 0.9 * len(current.faces):
+            stop = f"decimation stalled at {len(current.faces)} faces"
+        if stop:
+            break
+        current = step
+    if current is mesh:
+        repairs.append(f"kept all {len(mesh.faces)} faces before remeshing: {stop} (GRT's quadric decimation "
+                       "would have changed the object)")
+        return mesh
+    ratio = abs(float(current.volume)) / volume
+    repairs.append(f"decimated {len(mesh.faces)} -> {len(current.faces)} faces (quadric, fast-simplification, halving "
+                   f"stages, volume x{ratio:.4f})" + (f"; stopped early: {stop}, so the object is kept" if stop else ""))
+    return current
+
+
+def remesh(mesh: trimesh.Trimesh, edge: float, repairs: list[str], fix: str = "") -> trimesh.Trimesh:
+    """Isotropic remeshing of a closed ``mesh`` to edge length ``edge`` (mesh units).
+
+    A very fine input is decimated first (:func:`decimate`, towards twice the target's face count); a
+    coarser input is first split flat to edges <= ``edge`` (the surface does not move) and its crease
+    vertices are kept fixed, so that the remeshing keeps sharp edges and corners instead of cutting them.
+    A result that is not closed and free of zero-area faces is remeshed again at a target edge 7% smaller,
+    then 7% larger; if none is, the refusal says it is GRT's step that failed, and ``fix`` (a setting that
+    avoids the step).
     """
     budget = target_faces(mesh, edge)
     v, f = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64)
     fixed = np.zeros(0, np.int32)
     if len(f) > 2 * FINE_FACTOR * budget:  # remeshing 300k faces directly takes ~10x longer
-        small = mesh.simplify_quadric_decimation(face_count=2 * budget)
-        if _closed(small):
-            repairs.append(f"decimated {len(f)} -> {len(small.faces)} faces (quadric, fast-simplification)")
-            v, f = np.asarray(small.vertices, np.float64), np.asarray(small.faces, np.int64)
+        small = decimate(mesh, 2 * budget, repairs)
+        v, f = np.asarray(small.vertices, np.float64), np.asarray(small.faces, np.int64)
     elif len(f) < budget:
         v, f = trimesh.remesh.subdivide_to_size(v, f, max_edge=edge)
         fixed = crease_vertices(trimesh.Trimesh(v, f, process=False))
-    try:
-        rv, rf = gpytoolbox.remesh_botsch(np.array(v, np.float64), np.array(f, np.int32), i=REMESH_ITERATIONS,
-                                          h=edge, feature=fixed, project=True)
-    except ValueError as exc:  # gpytoolbox refuses a non-manifold input
-        raise MeshError(f"isotropic remeshing failed ({exc}); set mesh.remesh=off or repair the mesh in a "
-                        "modelling tool") from None
-    out = trimesh.Trimesh(np.array(rv, np.float64), np.array(rf, np.int64), process=False)
+    left = []
+    for h in (edge, 0.93 * edge, 1.07 * edge):
+        try:
+            rv, rf = gpytoolbox.remesh_botsch(np.array(v, np.float64), np.array(f, np.int32), i=REMESH_ITERATIONS,
+                                              h=h, feature=fixed, project=True)
+        except ValueError as exc:  # gpytoolbox refuses a non-manifold input
+            raise MeshError(f"GRT's isotropic remeshing step failed ({exc}); " + (fix or "set mesh.remesh=off")) from None
+        out = fix_flat_faces(trimesh.Trimesh(np.array(rv, np.float64), np.array(rf, np.int64), process=False))
+        flipped, flat = out.metadata.pop("grt_flat_faces_fixed"), out.metadata.pop("grt_flat_faces_left")
+        out.metadata.pop("grt_flat_faces_moved")
+        left = ([f"{flat} zero-area faces"] if flat else []) + ([] if _closed(out) else ["an open or non-manifold surface"])
+        if not left:
+            break
+    else:
+        raise MeshError(f"GRT's isotropic remeshing step (gpytoolbox remesh_botsch, target edge {edge:.4g} mesh units, "
+                        f"and 7% finer and coarser) left {' and '.join(left)}: the fault is GRT's step, not the "
+                        f"input. Fix: {fix or 'set mesh.remesh=off, or another mesh.edge_length'}")
     kept = f", {len(fixed)} crease vertices kept" if len(fixed) else ""
-    out = fix_flat_faces(out)
-    flipped = out.metadata.pop("grt_flat_faces_fixed")
     flips = f"; {flipped} zero-area faces between kept crease vertices collapsed or flipped" if flipped else ""
+    again = f"; target edge {h:.4g} after the first tries left zero-area faces or holes" if h != edge else ""
     repairs.append(f"remeshed isotropically: {len(mesh.faces)} -> {len(out.faces)} faces, target edge {edge:.4g} "
-                   f"mesh units (gpytoolbox remesh_botsch, {REMESH_ITERATIONS} iterations{kept}{flips})")
+                   f"mesh units (gpytoolbox remesh_botsch, {REMESH_ITERATIONS} iterations{kept}{flips}{again})")
     return out
 
 
-def fix_flat_faces(mesh: trimesh.Trimesh, max_flips: int = 100) -> trimesh.Trimesh:
-    """Remove zero-area faces that remeshing left between crease vertices it had to keep; returns the mesh.
+def fix_flat_faces(mesh: trimesh.Trimesh, max_flips: int | None = None) -> trimesh.Trimesh:
+    """Collapse zero-area faces without opening the surface; returns the mesh (a new one when anything changed).
 
     A *needle* (two of its vertices at the same place, e.g. two crease vertices of a boolean union 1e-9
     apart) is collapsed: the coincident vertices are merged and the faces left with a repeated vertex
-    dropped. A *cap* ``(a, b, c)`` with ``c`` on its longest edge ``ab`` is flipped with its neighbour
-    ``(b, a, d)`` into ``(c, a, d)`` and ``(c, d, b)``: the same surface, orientation kept. The count of
-    both is in ``mesh.metadata["grt_flat_faces_fixed"]``.
+    dropped. A *cap* ``(a, b, c)`` with ``c`` on its longest edge ``ab`` (a T-junction closed by a flat
+    face, as CAD exporters leave along seams) is flipped with its neighbour ``(b, a, d)`` into ``(c, a, d)``
+    and ``(c, d, b)``: the same surface, orientation kept, nothing opened. A flip that would duplicate an
+    edge is collapsed instead (``c`` merged into the nearer end of ``ab``). The count of all is in
+    ``mesh.metadata["grt_flat_faces_fixed"]``, the faces still flat in ``["grt_flat_faces_left"]`` and the
+    farthest a vertex moved (mesh units; 0 for flips) in ``["grt_flat_faces_moved"]``.
     """
     def flat(m):
         return np.flatnonzero(~m.nondegenerate_faces(height=1e-12))
@@ -377,25 +423,62 @@ def fix_flat_faces(mesh: trimesh.Trimesh, max_flips: int = 100) -> trimesh.Trime
             mesh = trimesh.Trimesh(v, f[keep], process=False)
             mesh.remove_unreferenced_vertices()
     faces = np.array(mesh.faces)
-    for _ in range(max_flips):
-        bad = flat(trimesh.Trimesh(mesh.vertices, faces, process=False))
-        if len(bad) == 0:
+    vertices = np.asarray(mesh.vertices)
+    bad = flat(trimesh.Trimesh(vertices, faces, process=False))
+    limit = max_flips if max_flips is not None else 10 * len(bad) + 100
+    skipped: set[int] = set()
+    moved = 0.0
+    for _ in range(limit):
+        bad = [i for i in flat(trimesh.Trimesh(vertices, faces, process=False)) if i not in skipped]
+        if not bad:
             break
         i = bad[0]
-        tri = mesh.vertices[faces[i]]
-        k = int(np.argmax([np.linalg.norm(tri[(k + 1) % 3] - tri[k]) for k in range(3)]))
+        tri = vertices[faces[i]]
+        lengths = [np.linalg.norm(tri[(k + 1) % 3] - tri[k]) for k in range(3)]
+        k = int(np.argmax(lengths))
         a, b, c = faces[i, k], faces[i, (k + 1) % 3], faces[i, (k + 2) % 3]
+        if min(lengths) <= 1e-3 * max(lengths):  # a needle: merge its short edge (flipping it only moves it)
+            s = int(np.argmin(lengths))
+            p, q = faces[i, s], faces[i, (s + 1) % 3]
+            collapsed = _collapse_onto_edge(vertices, faces, p, p, q)
+            if collapsed is None:
+                skipped.add(i)
+            else:
+                (faces, step), skipped = collapsed, set()
+                fixed, moved = fixed + 1, max(moved, step)
+            continue
         nb = np.flatnonzero(((faces == b) & (np.roll(faces, -1, axis=1) == a)).any(1))
-        if len(nb) != 1:
-            break
-        d = int(faces[nb[0]][~np.isin(faces[nb[0]], (a, b))][0])
-        if d == c:
-            break
+        d = int(faces[nb[0]][~np.isin(faces[nb[0]], (a, b))][0]) if len(nb) == 1 else c
+        if d == c or ((faces == c).any(1) & (faces == d).any(1)).any():  # no neighbour, or edge cd exists
+            collapsed = _collapse_onto_edge(vertices, faces, a, b, c)
+            if collapsed is None:
+                skipped.add(i)
+            else:
+                (faces, step), skipped = collapsed, set()
+                fixed, moved = fixed + 1, max(moved, step)
+            continue
         faces[i], faces[nb[0]] = (c, a, d), (c, d, b)
         fixed += 1
-    mesh = trimesh.Trimesh(mesh.vertices, faces, process=False) if fixed else mesh
+    if fixed:
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        mesh.remove_unreferenced_vertices()
     mesh.metadata["grt_flat_faces_fixed"] = fixed
+    mesh.metadata["grt_flat_faces_moved"] = moved
+    mesh.metadata["grt_flat_faces_left"] = len(flat(mesh))
     return mesh
+
+
+def _collapse_onto_edge(vertices: np.ndarray, faces: np.ndarray, a: int, b: int,
+                        c: int) -> tuple[np.ndarray, float] | None:
+    """Faces with ``c`` (on the edge ``ab`` of a flat face) merged into the nearer of ``a``, ``b``; None when that
+    would open the surface or duplicate a face; with the distance ``c`` moved (at most half the edge)."""
+    near = a if np.linalg.norm(vertices[c] - vertices[a]) <= np.linalg.norm(vertices[c] - vertices[b]) else b
+    new = np.where(faces == c, near, faces)
+    new = new[(new[:, 0] != new[:, 1]) & (new[:, 1] != new[:, 2]) & (new[:, 2] != new[:, 0])]
+    trial = trimesh.Trimesh(vertices, new, process=False)
+    if not trial.is_watertight or not trial.unique_faces().all():
+        return None
+    return new, float(np.linalg.norm(vertices[c] - vertices[near]))
 
 
 # ------------------------------------------------------------------------------------------ report
@@ -408,7 +491,8 @@ def describe(mesh: trimesh.Trimesh) -> list[str]:
              f"{prep['output']['vertices']} vertices; {prep['remesh']['decision']}"]
     lines += [f"  repaired: {r}" for r in prep["repairs"]]
     fid, tol = prep["fidelity"], prep["tolerance"]
-    lines.append(f"  fidelity: volume ratio {fid['volume_ratio']:.4f}, Hausdorff {fid['hausdorff_mm']:.3f} mm, "
+    estimate = " (input volume estimated: the input is open)" if fid.get("volume_estimated") else ""
+    lines.append(f"  fidelity: volume ratio {fid['volume_ratio']:.4f}{estimate}, Hausdorff {fid['hausdorff_mm']:.3f} mm, "
                  f"Chamfer {fid['chamfer_mm']:.3f} mm ({'exact, surface unchanged' if prep['exact'] else 'measured'};"
                  f" allowed: {tol['fidelity_mm']:g} mm, volume ±{tol['volume_tol']:.0%})")
     if prep["output"].get("self_intersections"):

@@ -142,12 +142,20 @@ def inverted_faces(nominal: trimesh.Trimesh, vertices: np.ndarray) -> int:
     return int((np.einsum("ij,ij->i", n, np.asarray(nominal.face_normals)) < 0).sum())
 
 
-def candidate_validity(nominal: trimesh.Trimesh, mesh: trimesh.Trimesh) -> dict:
+def candidate_validity(nominal: trimesh.Trimesh, mesh: trimesh.Trimesh,
+                       max_volume_change: float | None = None) -> dict:
     """What every journal record stores about a candidate's plausibility.
+
+    Args:
+        nominal: the nominal mesh; mesh: the candidate (same vertex order and faces).
+        max_volume_change: the largest relative change of the enclosed volume a plausible candidate may
+            have (``deformer.max_volume_change``; ``None``: not checked). A bump that takes a quarter of a
+            small fruit's volume is not the same object.
 
     Returns:
         ``{"self_intersections": int, "inverted_faces": int, "watertight": bool,
-        "winding_consistent": bool, "valid": bool}``; ``valid`` needs all four to be good.
+        "winding_consistent": bool, "valid": bool}``, and with ``max_volume_change`` ``"volume_change"``;
+        ``valid`` needs all of them to be good.
         ``self_intersections`` counts the crossing face pairs the deformation *added*: a crossing the
         nominal mesh already has (reported when it was loaded) is the input's, not the candidate's.
     """
@@ -156,5 +164,28 @@ def candidate_validity(nominal: trimesh.Trimesh, mesh: trimesh.Trimesh) -> dict:
     inv = inverted_faces(nominal, mesh.vertices)
     watertight = bool(mesh.is_watertight)
     winding = bool(mesh.is_winding_consistent)
-    return {"self_intersections": si, "inverted_faces": inv, "watertight": watertight,
-            "winding_consistent": winding, "valid": bool(si == 0 and inv == 0 and watertight and winding)}
+    out = {"self_intersections": si, "inverted_faces": inv, "watertight": watertight,
+           "winding_consistent": winding, "valid": bool(si == 0 and inv == 0 and watertight and winding)}
+    if max_volume_change is not None:
+        v0 = abs(float(nominal.volume))
+        change = abs(float(mesh.volume)) / v0 - 1.0 if v0 > 0 else 0.0
+        out["volume_change"] = round(change, 5)
+        out["valid"] = out["valid"] and abs(change) <= max_volume_change
+    return out
+
+
+def shape_change(nominal: trimesh.Trimesh, mesh: trimesh.Trimesh) -> dict:
+    """How far a deformed ``mesh`` (the nominal's vertex order and faces) is from the ``nominal`` object.
+
+    Returns:
+        ``volume_change``: relative change of the enclosed volume (``-0.12``: 12% smaller), and
+        ``max_dihedral_change_deg``: the largest change, over all edges, of the angle between the two
+        faces' normals (degrees; a crease the deformation made or flattened).
+    """
+    v0 = abs(float(nominal.volume))
+    nominal_angles = np.asarray(nominal.face_adjacency_angles)
+    shape = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(nominal.faces), process=False)
+    angles = shape.face_adjacency_angles if np.array_equal(shape.face_adjacency, nominal.face_adjacency) else None
+    change = np.degrees(np.abs(np.asarray(angles) - nominal_angles)).max() if angles is not None else float("nan")
+    return {"volume_change": round(abs(float(shape.volume)) / v0 - 1.0, 5) if v0 > 0 else None,
+            "max_dihedral_change_deg": round(float(change), 2)}

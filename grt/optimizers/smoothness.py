@@ -39,3 +39,25 @@ def project_to_budget(thetas: np.ndarray, tau: float | None, meters_per_unit: fl
     ss = smoothness_score(thetas, meters_per_unit)
     scale = np.minimum(1.0, tau / np.maximum(ss, 1e-300))
     return thetas * scale[..., None, None]
+
+
+def budget_tau(tau: float | None, tau_rel: float | None, diagonal_m: float) -> tuple[float | None, str]:
+    """The Smoothness-Score cap of a run in meters, and a sentence saying where it came from.
+
+    ``tau`` (meters) when given; else ``tau_rel`` x the object's bounding-box diagonal, rounded to 0.1 mm
+    (so a relative cap that equals a round absolute one on some object gives exactly that one: 0.087 on
+    the mug's 172.6 mm diagonal is the former 15 mm); ``None`` when both are ``None`` (no cap).
+
+    Args:
+        tau: ``budget.tau`` in meters or ``None``; tau_rel: ``budget.tau_rel`` or ``None``.
+        diagonal_m: the object's bounding-box diagonal in meters.
+    """
+    if tau is not None:
+        return float(tau), f"budget.tau = {tau * 1000:.3g} mm mean handle displacement"
+    if tau_rel is None:
+        return None, "no Smoothness-Score cap (budget.tau and budget.tau_rel are null)"
+    meters = round(float(tau_rel) * float(diagonal_m), 4)
+    if meters <= 0:
+        meters = float(tau_rel) * float(diagonal_m)
+    return meters, (f"budget.tau_rel = {tau_rel:g} x the object's {diagonal_m * 1000:.1f} mm diagonal = "
+                    f"{meters * 1000:.3g} mm mean handle displacement")

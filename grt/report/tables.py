@@ -127,7 +127,7 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
     for r in rows:
         lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | "
                      f"{_fmt(r.get('sigma'), 'g')} | {_fmt(r.get('seed'))} | "
-                     f"{ScoreSpec.from_summary(r).label} | {score_cell(r, 's0')} | {score_cell(r, 'best_score')} | "
+                     f"{ScoreSpec.from_summary(r).label} | {score_cell(r, 's0')} | {score_cell(r, 'best_score')}{' (no CrashShape)' if r.get('crashshape_found') is False else ''} | "
                      f"{_fmt(r['final_drop'], 'pct')} | {_confirm_cell(r) if confirmed else ''}"
                      f"{_fmt(r['delta_complexity'])} | "
                      f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} | {_implausible_cell(r)} |")

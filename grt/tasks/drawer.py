@@ -71,6 +71,11 @@ def check_handle(mesh: trimesh.Trimesh, grasp_point: np.ndarray, cabinet: Cabine
         raise HandleFitError(f"{what} reaches {-lo[2] * 1000:.0f} mm behind its mounting plane into the drawer front: "
                              "in the handle frame z = 0 is the front and the handle stands on it (z >= 0); "
                              "check the mesh's orientation and units")
+    if lo[2] > 0.002:
+        raise HandleFitError(f"{what} floats {lo[2] * 1000:.0f} mm in front of its mounting plane: in the handle frame "
+                             "z = 0 is the drawer front and the handle's feet stand on it; move the mesh down by "
+                             f"{lo[2] * 1000:.1f} mm in a modelling tool (trimesh: mesh.apply_translation([0, 0, "
+                             f"{-lo[2]:.4f}])) and export it again")
     if max(abs(lo[0]), abs(hi[0])) > width / 2 or max(abs(lo[1]), abs(hi[1])) > height / 2:
         raise HandleFitError(f"{what} ({(hi[0] - lo[0]) * 1000:.0f} x {(hi[1] - lo[1]) * 1000:.0f} mm across the front) "
                              f"does not fit the drawer front ({width * 1000:.0f} x {height * 1000:.0f} mm, centered): "

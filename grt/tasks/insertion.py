@@ -27,9 +27,11 @@ from grt.tasks.base import COMMON_MODES, EpisodeSession
 from grt.tasks.insertion_env import GRIP_DIM, STATE_DIM, InsertEnv  # registers GRT-Insert-v1
 from grt.tasks.socket import PlugFitError, build_socket, grip_half_width
 
-__all__ = ["InsertEnv", "InsertionSession", "PlugFitError", "plug_geometry"]
+__all__ = ["InsertEnv", "InsertionSession", "PlugFitError", "check_tip", "plug_geometry"]
 
 MAX_GRIPPER_WIDTH = 0.08  # m: the Panda's fingers open 2 x 0.04
+GRIP_CLEARANCE = 0.004  # m kept free between the open fingers and the plug: the widest grip is 76 mm
+TIP_TOLERANCE = 0.0001  # m: how far from z = 0 a plug's tip may be
 
 
 def plug_geometry(spec: str, head_length: float | None, grip_height: float | None) -> tuple[float, float]:
@@ -53,9 +55,26 @@ def plug_geometry(spec: str, head_length: float | None, grip_height: float | Non
 def _check_grip(mesh: trimesh.Trimesh, grip_height: float) -> None:
     """The plug has a surface at the grip height, narrow enough for the Panda's fingers."""
     width = 2 * grip_half_width(mesh, grip_height)
-    if width > MAX_GRIPPER_WIDTH - 0.004:
-        raise PlugFitError(f"the plug's grip is {width * 1000:.0f} mm wide across the fingers; the Panda opens "
-                           f"{MAX_GRIPPER_WIDTH * 1000:.0f} mm: use a narrower plug, or check its units")
+    widest = MAX_GRIPPER_WIDTH - GRIP_CLEARANCE
+    if width > widest:
+        raise PlugFitError(f"the plug's grip is {width * 1000:.0f} mm wide across the fingers; the widest grip the "
+                           f"task accepts is {widest * 1000:.0f} mm (the Panda opens {MAX_GRIPPER_WIDTH * 1000:.0f} mm, "
+                           f"{GRIP_CLEARANCE * 1000:.0f} mm kept for clearance): use a narrower plug, or check its units")
+
+
+def check_tip(mesh: trimesh.Trimesh, what: str = "the plug") -> None:
+    """A plug's tip is at z = 0 with its connector pointing down (-z): GRT's convention, which the socket,
+    ``head_length`` and ``grip_height`` are measured from.
+
+    Raises:
+        PlugFitError: the lowest point is not at z = 0 (the message gives the shift that fixes it).
+    """
+    tip = float(np.asarray(mesh.vertices)[:, 2].min())
+    if abs(tip) > TIP_TOLERANCE:
+        raise PlugFitError(f"{what}'s tip is at z = {tip * 1000:.1f} mm; GRT's plugs have their tip at z = 0 with the "
+                           f"connector pointing down (head_length and grip_height are measured from it): move the mesh "
+                           f"{'up' if tip < 0 else 'down'} by {abs(tip) * 1000:.1f} mm in a modelling tool (trimesh: "
+                           f"mesh.apply_translation([0, 0, {-tip:.4f}])) and export it again")
 
 
 class InsertionSession(EpisodeSession):
@@ -86,13 +105,15 @@ class InsertionSession(EpisodeSession):
 
         self.head_length, self.grip_height = plug_geometry(str(socket_object), head_length, grip_height)
         nominal = load_mesh(socket_object)
+        check_tip(nominal, "the nominal plug")
         _check_grip(nominal, self.grip_height)
         self.socket = build_socket(nominal, self.head_length, clearance=clearance, chamfer=chamfer)
         self.obs_spec = self.observation_spec(cloud_points=cloud_points)
         self._check_policy()
         self.env = gym.make(env_id, obs_mode="none", sim_backend="physx_cpu", render_backend="cpu",
                             reward_mode="dense", head_length=self.head_length,
-                            grip_height=self.grip_height, cloud_points=int(cloud_points), **(env or {}))
+                            grip_height=self.grip_height, cloud_points=int(cloud_points), plug=nominal,
+                            **(env or {}))
         self.unwrapped: InsertEnv = self.env.unwrapped
         self.unwrapped.set_socket(self.socket)
         self._object_changed = True
@@ -113,8 +134,10 @@ class InsertionSession(EpisodeSession):
         from grt.geometry.mesh import load_mesh
 
         head, grip = plug_geometry(str(socket_object), head_length, grip_height)
+        check_tip(mesh)
         _check_grip(mesh, grip)
         nominal = load_mesh(socket_object)
+        check_tip(nominal, "the nominal plug (task.session.socket_object)")
         _check_grip(nominal, grip)
         socket = build_socket(nominal, head, clearance=clearance)
         if socket.outer_radius > 0.1:

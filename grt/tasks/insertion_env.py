@@ -122,6 +122,7 @@ class InsertEnv(TaskEnv):
 
     Args:
         head_length: length (m) of the plug's connector (from its tip at z = 0).
+        plug: the plug before any :meth:`set_object` (meters, tip at z = 0); ``None``: the built-in USB plug.
         grip_height: height (m) on the plug of the point between the fingertips in the nominal grip.
         socket_xy_range, socket_z_range, socket_yaw_range: socket randomization (m, m, rad).
         plug_xy_range: XY noise (m) of the plug above the socket; plug_height_range: (low, high) of its
@@ -141,7 +142,8 @@ class InsertEnv(TaskEnv):
                  socket_yaw_range: float = 0.087, plug_xy_range: float = 0.01,
                  plug_height_range: tuple[float, float] = (0.010, 0.025), plug_yaw_range: float = 0.087,
                  target_noise: float = 0.001, plug_friction: float = 1.0, plug_density: float = 1000.0,
-                 cloud_points: int = 500, sim_freq: int = 100, control_freq: int = 20, **kwargs):
+                 cloud_points: int = 500, sim_freq: int = 100, control_freq: int = 20,
+                 plug: trimesh.Trimesh | None = None, **kwargs):
         self.head_length, self.grip_height = float(head_length), float(grip_height)
         self.socket_xy_range, self.socket_z_range = float(socket_xy_range), tuple(socket_z_range)
         self.socket_yaw_range, self.plug_xy_range = float(socket_yaw_range), float(plug_xy_range)
@@ -151,7 +153,11 @@ class InsertEnv(TaskEnv):
         self.cloud_points = int(cloud_points)
         self._sim_freq, self._control_freq = int(sim_freq), int(control_freq)
         self._ik: PandaIK | None = None
-        plug, parts = default_plug(self.head_length)
+        if plug is None:
+            plug, parts = default_plug(self.head_length)
+        else:  # the session's nominal plug: the built-in one may have no surface at a user's grip height
+            v = np.asarray(plug.vertices)
+            parts = [v[v[:, 2] <= self.head_length + 1e-9], v[v[:, 2] >= self.head_length - 1e-9]]
         self.set_socket(build_socket(plug, self.head_length))
         self.set_object(plug, parts)
         super().__init__(*args, robot_uids="panda_insert", **kwargs)

@@ -64,3 +64,59 @@ def inside_out(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     out = mesh.copy()
     out.invert()
     return out
+
+
+def with_seam_caps(mesh: trimesh.Trimesh, caps: int, seed: int = 0) -> trimesh.Trimesh:
+    """``mesh`` (closed) with ``caps`` T-junctions along its crease edges, each closed by a zero-area face, as
+    CAD exporters leave them along seams: a face beside the edge ``ab`` is split at the edge's midpoint
+    ``c``, the face on the other side is not, and the flat face ``(a, b, c)`` closes the gap. Watertight."""
+    m = mesh.copy()
+    m.merge_vertices()
+    v, f = list(np.asarray(m.vertices)), [list(x) for x in np.asarray(m.faces)]
+    pairs = m.face_adjacency[m.face_adjacency_angles > np.radians(20)]
+    used: set[int] = set()
+    for i, j in pairs[np.random.default_rng(seed).permutation(len(pairs))]:
+        if len(used) == 2 * caps:
+            break
+        if i in used or j in used:
+            continue
+        used |= {int(i), int(j)}
+        t = next(t for t in range(3) if f[i][t] in f[j] and f[i][(t + 1) % 3] in f[j])
+        a, b, x = f[i][t], f[i][(t + 1) % 3], f[i][(t + 2) % 3]
+        c = len(v)
+        v.append((v[a] + v[b]) / 2)
+        f[i] = [a, c, x]
+        f += [[c, b, x], [a, b, c]]
+    return trimesh.Trimesh(np.array(v), np.array(f), process=False)
+
+
+def carton(size=(0.07, 0.07, 0.2), caps: int = 7) -> trimesh.Trimesh:
+    """A closed carton (a box, its sides split once) whose closure uses ``caps`` zero-area faces."""
+    box = trimesh.creation.box(size)
+    box.apply_translation([0, 0, size[2] / 2])
+    v, f = trimesh.remesh.subdivide(box.vertices, box.faces)
+    fine = trimesh.Trimesh(v, f)
+    return with_seam_caps(fine, caps)
+
+
+def uv_sphere(radius: float = 0.05, n_lon: int = 600, n_lat: int = 450) -> trimesh.Trimesh:
+    """A closed UV sphere as Blender or Open3D make it (one vertex per pole, a triangle fan around it): 539k
+    faces by default. One aggressive quadric decimation of it to ~12k faces keeps 0.54 of its volume."""
+    th = np.linspace(0, np.pi, n_lat + 1)[1:-1]
+    ph = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    ring = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    v = np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]]) * radius
+    k = np.arange(n_lon)
+
+    def at(r, kk):
+        return 1 + r * n_lon + kk % n_lon
+
+    f = [np.stack([np.zeros(n_lon, int), at(0, k), at(0, k + 1)], 1)]
+    for r in range(n_lat - 2):
+        f += [np.stack([at(r, k), at(r + 1, k), at(r + 1, k + 1)], 1), np.stack([at(r, k), at(r + 1, k + 1), at(r, k + 1)], 1)]
+    f.append(np.stack([np.full(n_lon, len(v) - 1), at(n_lat - 2, k + 1), at(n_lat - 2, k)], 1))
+    sphere = trimesh.Trimesh(v, np.concatenate(f), process=False)
+    if sphere.volume < 0:
+        sphere.invert()
+    return sphere

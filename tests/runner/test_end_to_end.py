@@ -38,15 +38,19 @@ def test_smoke_run_writes_every_artifact(tmp_path):
         assert (tmp_path / name).stat().st_size > 0, name
     assert 0.0 <= summary["s0"] <= 1.0
     assert summary["final_drop"] >= 0 or summary["s0"] == 0
-    shapes = summary["crashshapes"]
+    found = summary["crashshape_found"]  # a smoke run often finds no drop: its best candidates go to best/
+    shapes = summary["crashshapes"] if found else summary["best_candidates"]
     assert len(shapes) == cfg.budget.top_k and all(s["watertight"] for s in shapes)
     assert (tmp_path / shapes[0]["file"]).exists()
-    assert (tmp_path / "crashshapes" / "handles.json").exists()
+    assert (tmp_path / ("crashshapes" if found else "best") / "handles.json").exists()
     assert list((tmp_path / shapes[0]["parts"]).glob("part*.obj")), "convex parts not saved"
     assert summary["selector"] == "heuristic" and summary["optimizer"] == "topdm"
     rec = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[1])
     assert {"theta", "score", "trials", "outcomes", "smoothness_m", "entropy", "mesh_hash"} <= set(rec)
     assert len(rec["trials"]) == cfg.budget.trials
+    if not found:  # nothing failed: nothing to confirm (the toy runs of test_confirm.py cover a drop)
+        assert "confirm" not in summary and not list(tmp_path.glob("confirm-*.jsonl"))
+        return
     # the CrashShapes confirmed on fresh episodes by the real simulator, journaled apart from the search
     conf = summary["confirm"]
     assert len(conf["seeds"]) == 2 and not set(conf["seeds"]) & {t["seed"] for t in rec["trials"]}

@@ -189,15 +189,19 @@ def test_write_outputs_rewrite_matches_the_summary_and_leaves_no_temp_files(tmp_
     cfg = compose_run(["object=can", "budget=smoke", "budget.top_k=2", f"paths.output_dir={tmp_path}"])
     loop, ev = make_loop(tmp_path)
     result = loop.run()
-    write_outputs(cfg, tmp_path, result, loop.deformer, _handles(loop), ev, wall_s=1.0)
-    (tmp_path / "crashshapes" / "rank1_it9_c9.stl").write_text("stale")  # an earlier session's rank 1
-    (tmp_path / "crashshapes" / "rank3_it1_c2_parts").mkdir()
+    first = write_outputs(cfg, tmp_path, result, loop.deformer, _handles(loop), ev, wall_s=1.0)
+    found = first["crashshape_found"]  # no failure: the best candidates are written to best/ instead
+    folder, key, other = ("crashshapes", "crashshapes", "best") if found else ("best", "best_candidates", "crashshapes")
+    for name in (folder, other):  # an earlier session's rank 1 and parts, in either folder
+        (tmp_path / name).mkdir(exist_ok=True)
+        (tmp_path / name / "rank1_it9_c9.stl").write_text("stale")
+        (tmp_path / name / "rank3_it1_c2_parts").mkdir(exist_ok=True)
     summary = write_outputs(cfg, tmp_path, result, loop.deformer, _handles(loop), ev, wall_s=1.0)
-    stls = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "crashshapes").glob("*.stl"))
-    assert stls == sorted(s["file"] for s in summary["crashshapes"])
-    assert not (tmp_path / "crashshapes" / "rank3_it1_c2_parts").exists()
-    assert json.loads((tmp_path / "summary.json").read_text())["crashshapes"] == summary["crashshapes"]
-    for name in ("curve.png", "shapes.png", "crashshapes/handles.json"):
+    stls = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / folder).glob("*.stl"))
+    assert stls == sorted(s["file"] for s in summary[key])
+    assert not (tmp_path / folder / "rank3_it1_c2_parts").exists() and not list((tmp_path / other).glob("rank*"))
+    assert json.loads((tmp_path / "summary.json").read_text())[key] == summary[key]
+    for name in ("curve.png", "shapes.png", f"{folder}/handles.json"):
         assert (tmp_path / name).stat().st_size > 0
     assert _temp_files(tmp_path) == []
 
