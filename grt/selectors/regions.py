@@ -97,5 +97,5 @@ def _part_mask(points: np.ndarray, spec: Mapping) -> np.ndarray:
     masks = {"grip": z >= 0.75 * height, "left_foot": (z <= 0.25 * height) & (x < 0),
              "right_foot": (z <= 0.25 * height) & (x > 0)}
     if name not in masks:
-        raise ValueError(f"a drawer handle's regions are {', '.join(masks)}, not {name!r}")
+        raise SelectorError(f"a drawer handle's regions are {', '.join(masks)}, not {name!r}")
     return masks[name]
