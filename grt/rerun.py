@@ -84,11 +84,13 @@ def check_trial(run_dir: Path, iteration: int, candidate: int, seed: int) -> dic
 
 
 def first_failure(run_dir: Path) -> tuple[str, int]:
-    """The rank-1 CrashShape's first failing trial (candidate name, seed)."""
+    """The rank-1 CrashShape's first failing trial (candidate name, seed); in a run that found no CrashShape,
+    its best candidate's (``best_candidates`` in ``summary.json``)."""
     summary_path = run_dir / "summary.json"
     records = _records(run_dir)
     by_key = {(r["iteration"], r["candidate"]): r for r in records}
-    shapes = json.loads(summary_path.read_text()).get("crashshapes", []) if summary_path.is_file() else []
+    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+    shapes = summary.get("crashshapes") or summary.get("best_candidates") or []
     if shapes:
         ranked = [by_key.get((s["iteration"], s["candidate"])) for s in shapes]
     else:  # partial run: its lowest candidate so far

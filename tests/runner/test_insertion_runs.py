@@ -38,7 +38,8 @@ def _cli(module: str, *args: str, timeout: float = 300):
 
 @pytest.mark.parametrize("args, message", [
     (["task=insertion", "policy=insertion_state", "policy.checkpoint=/nonexistent/x.pt"], "does not exist"),
-    (["task=grasp", "policy=insertion_state"], "trained for task 'insertion'"),
+    (["task=grasp", "policy=insertion_state"], "is a closed-loop policy"),  # refused by kind, before its checkpoint
+    (["task=drawer", "policy=insertion_state"], "trained for task 'insertion'"),
     (["task=insertion", "policy=insertion_pcd", "task.session.cloud_points=100"],
      "expects observation 'cloud' of shape (500, 3)"),
     (["task=insertion", "policy=insertion_state", "object=mug"], "'mug' is no built-in plug"),
