@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from grt.fileio import write_text_atomic
+from grt.journal import restore
 from grt.report.tables import ReportError, aggregate, collect
 from grt.scores import ScoreSpec
 
@@ -86,7 +87,7 @@ def read_journal(path: Path) -> tuple[list[dict], str | None]:
             raise ReportError(f"{path}: line {n} is not JSON; the journal was edited or damaged. Restore it or "
                               "report on another run") from None
         if isinstance(rec, dict) and "iteration" in rec and "score" in rec:
-            records.append(rec)
+            records.append(restore(rec))  # NaN scores (refused candidates) are written null
     return records, problem
 
 

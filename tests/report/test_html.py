@@ -121,3 +121,21 @@ def test_without_a_renderer_the_page_says_why_in_one_line(run_copy, monkeypatch)
     write_report(run_copy)
     page = (run_copy / "report.html").read_text()
     assert f"<p class='warn'>No videos: {why}</p>" in page and "<video" not in page
+
+
+def test_refused_candidates_written_null_by_the_journal_are_read_as_nan(tmp_path):
+    """The journal writes a refused candidate's NaN score as strict JSON (null + its ``nonfinite`` key);
+    the report reads it back as NaN and draws it as refused, not as a score (found on the demo's run)."""
+    import math
+
+    from grt.journal import strict
+    from grt.report.html import read_journal, search_svg
+    from grt.scores import ScoreSpec
+
+    lines = [{"iteration": 0, "candidate": 0, "score": 1.0}, {"iteration": 1, "candidate": 0, "score": 0.5},
+             {"iteration": 1, "candidate": 1, "score": float("nan"), "valid": False}]
+    path = tmp_path / "journal.jsonl"
+    path.write_text("".join(json.dumps(strict(rec), allow_nan=False) + "\n" for rec in lines))
+    records, problem = read_journal(path)
+    assert problem is None and math.isnan(records[2]["score"]) and "nonfinite" not in records[2]
+    assert "<svg" in search_svg(records, ScoreSpec())
