@@ -412,6 +412,10 @@ def _shapes_section(run: RunFolder, page: dict) -> str:
                          f"displacement: max {disp.max():.1f} mm, mean {disp.mean():.2f} mm")
         else:
             disp_note = "displacement unknown (no nominal.obj with the same vertices)"
+        if shape.get("volume_change") is not None:  # recorded since issue 33
+            disp_note += f"; volume {shape['volume_change']:+.1%} vs nominal"
+        if shape.get("max_dihedral_change_deg") is not None:
+            disp_note += f", largest crease change {shape['max_dihedral_change_deg']:.0f}°"
         meshes[key] = entry
         c = fresh.get((shape["iteration"], shape["candidate"]))
         fresh_txt = (f"; fresh episodes {score.fmt(c['score'], unit=True)}, Holm p = {c['p_holm']:.3g}"

@@ -56,6 +56,7 @@ def test_crashshapes_are_embedded_with_their_displacement_in_mm(toy_run):
     handles = json.loads((toy_run / "handles.json").read_text())["handles"]
     assert found["rank1"]["handles"] == handles
     assert f"href='{shape['file']}'" in page  # the printable STL
+    assert f"volume {shape['volume_change']:+.1%} vs nominal" in page  # issue 33: shape change beside the view
 
 
 def test_failure_modes_and_seeds_of_every_trial_are_shown(toy_run):
