@@ -191,6 +191,8 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
         "workers": getattr(evaluator, "worker_limits", None),  # requested, used (bounded by cores, memory)
+        # where the trials ran: backend (pool or ray), address, nodes, trials per node (this session's)
+        "evaluator": evaluator.backend_info() if hasattr(evaluator, "backend_info") else None,
         "mesh_preparation": deformer.mesh.metadata.get("grt_prepare"),  # repairs, remesh, fidelity (mm)
         "deformer": deformer_summary(deformer),
         "invalid_candidates": sum(1 for r in records if r["iteration"] >= 1 and r.get("valid") is False),

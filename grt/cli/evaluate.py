@@ -66,6 +66,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
         # the base Evaluator interface takes meshes and seeds; the simulator's also takes known parts
         result = (ev.evaluate([mesh], seeds) if parts is None else ev.evaluate([mesh], seeds, parts=[parts]))[0]
         collision_s = ev.collision_s
+        backend = ev.backend_info() if hasattr(ev, "backend_info") else None
         run_s = getattr(ev, "run_s", 0.0) or time.perf_counter() - begin  # what the progress bar timed
     wall = time.perf_counter() - start
     summary = {**result.summary(ci=score.ci), **score.fields(), "object": str(cfg.object),
@@ -74,7 +75,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
                "wall_s": round(wall, 3), "startup_s": round(startup, 3), "trials_s": round(run_s, 3),
                "worker_s": round(result.wall_s, 3), "trials_per_s": round(len(seeds) / run_s, 4) if run_s else None,
                "collision_s": round(collision_s, 4),
-               "collision_parts": str(parts_dir) if parts_dir is not None else "coacd"}
+               "collision_parts": str(parts_dir) if parts_dir is not None else "coacd", "evaluator": backend}
     output_dir.mkdir(parents=True, exist_ok=True)
     record = {**summary, "seeds": seeds, "trials": [asdict(t) for t in result.trials]}
     (output_dir / "evaluation.json").write_text(json.dumps(record, indent=1, default=str))

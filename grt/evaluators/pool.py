@@ -112,31 +112,54 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
 def _run_job(session, job: Job, conn: Connection, using: dict | None = None) -> None:
     mesh = trimesh.Trimesh(job.vertices, job.faces, process=False, metadata=dict(job.metadata))
     start = time.perf_counter()  # the first trial's time includes loading the object
-    load_error = _use_policy(session, job.policy, using) if using is not None else None
-    if load_error is None:
-        load_error = _load(session, mesh, job.parts)
-    if load_error is None and hasattr(session, "prefetch"):
-        try:  # batched planning (a grasp network over several trials' clouds at once)
-            session.prefetch(job.seeds)
-        except Exception as exc:
-            load_error = f"prefetch failed: {type(exc).__name__}: {exc}"
+    load_error = prepare_job(session, mesh, job.parts, job.seeds, job.policy, using)
     conn.send(("loaded", job.job_id))
     for seed in job.seeds:
-        if load_error is not None:
-            outcome = sim_error(seed, load_error)
-        else:
-            try:
-                outcome = _run_trial(session, int(seed), lambda: _load(session, mesh, job.parts))
-            except Exception as exc:
-                outcome = sim_error(seed, f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
-                # The session's state is unknown after a failure: rebuild the object before going on.
-                load_error = _load(session, mesh, job.parts)
-            else:
-                _render(session, job, seed)
+        outcome, load_error = run_seed(session, mesh, job.parts, int(seed), load_error, job.render_dir, job.candidate)
         now = time.perf_counter()
         conn.send(("trial", (job.job_id, int(seed), outcome, now - start)))
         start = now
     conn.send(("done", job.job_id))
+
+
+def prepare_job(session, mesh: trimesh.Trimesh, parts: list[np.ndarray], seeds: list[int], policy: dict | None,
+                using: dict | None) -> str | None:
+    """Make ``session`` ready for a job's trials: its policy (``using``: the worker's record of the policy it
+    holds, see :func:`_use_policy`), the candidate's object, the batched plans of its seeds.
+
+    Returns:
+        ``None``, or why the job's trials cannot run (each then becomes a ``sim_error``).
+    """
+    load_error = _use_policy(session, policy, using) if using is not None else None
+    if load_error is None:
+        load_error = _load(session, mesh, parts)
+    if load_error is None and hasattr(session, "prefetch"):
+        try:  # batched planning (a grasp network over several trials' clouds at once)
+            session.prefetch(seeds)
+        except Exception as exc:
+            load_error = f"prefetch failed: {type(exc).__name__}: {exc}"
+    return load_error
+
+
+def run_seed(session, mesh: trimesh.Trimesh, parts: list[np.ndarray], seed: int, load_error: str | None,
+             render_dir: str | None, candidate: int) -> tuple[TrialOutcome, str | None]:
+    """One trial of a prepared job (:func:`prepare_job`): its outcome (a ``sim_error`` when the job could
+    not be prepared or the trial raised), and the job's load error after it (a failed trial rebuilds the
+    object; that can fail too).
+
+    Raises:
+        PolicyUnavailable: the policy's server stayed down (the whole evaluation stops).
+    """
+    if load_error is not None:
+        return sim_error(seed, load_error), load_error
+    try:
+        outcome = _run_trial(session, seed, lambda: _load(session, mesh, parts))
+    except Exception as exc:
+        outcome = sim_error(seed, f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=8))
+        # The session's state is unknown after a failure: rebuild the object before going on.
+        return outcome, _load(session, mesh, parts)
+    _render(session, render_dir, candidate, seed)
+    return outcome, None
 
 
 def _run_trial(session, seed: int, reload: Callable[[], str | None]) -> TrialOutcome:
@@ -202,11 +225,11 @@ def _load(session, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> str | None
     return None
 
 
-def _render(session, job: Job, seed: int) -> None:
+def _render(session, render_dir: str | None, candidate: int, seed: int) -> None:
     render = getattr(session, "render", None)
-    if job.render_dir is None or not callable(render):
+    if render_dir is None or not callable(render):
         return
-    path = Path(job.render_dir) / f"candidate{job.candidate:03d}_seed{seed}.png"
+    path = Path(render_dir) / f"candidate{candidate:03d}_seed{seed}.png"
     try:
         render(str(path))
     except Exception as exc:  # a picture is a nicety: never lose a trial to it
@@ -326,6 +349,7 @@ class WorkerPool:
         self.threads = int(threads) if threads else None
         self.workers: list[_Worker] = []
         self.restarts = 0  # workers replaced (crashed, hung or failed to start)
+        self.trials = 0  # trials run (outcomes received), over every run()
         self.startup_failures = 0
 
     def _spawn(self) -> _Worker:
@@ -425,6 +449,7 @@ class WorkerPool:
         elif kind == "trial" and w.job is not None:
             _job_id, seed, outcome, seconds = payload
             w.job.seeds.remove(seed)
+            self.trials += 1
             on_trial(w.job, outcome, seconds)
         elif kind == "done":
             w.job = None

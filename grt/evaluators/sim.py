@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import socket
 import time
 from pathlib import Path
 
@@ -64,12 +65,23 @@ class SimEvaluator(Evaluator):
             raise ValueError(f"chunk_size must be >= 1 or None, got {chunk_size}")
         self.collision = make_collision(collision, nominal, coacd, cache_dir, max_hull_vertices)
         self.collision_kind = collision
-        self.pool = WorkerPool(task, policy, workers, start_method, max_retries, trial_timeout, threads=threads)
+        self.pool = self._make_pool(task, policy, workers, start_method, max_retries, trial_timeout, threads)
         self.workers, self.chunk_size, self.progress = self.pool.num_workers, chunk_size, progress
         self.worker_limits = self.pool.limits  # requested and used workers, cores, memory (summary.json)
         self.render_dir = str(render_dir) if render_dir else None
         self.collision_s = 0.0
         self.run_s = 0.0  # seconds of the last evaluate's trials (the time its progress bar measures)
+
+    def _make_pool(self, task, policy, workers, start_method, max_retries, trial_timeout, threads):
+        """The workers: processes on this machine (``evaluator=ray``: actors, :mod:`grt.evaluators.ray_pool`)."""
+        return WorkerPool(task, policy, workers, start_method, max_retries, trial_timeout, threads=threads)
+
+    def backend_info(self) -> dict:
+        """The ``evaluator`` block of ``summary.json``: where the trials ran."""
+        host = socket.gethostname()
+        return {"backend": "pool", "address": None, "nodes": 1, "actors": self.workers,
+                "trials_per_node": {host: self.pool.trials} if self.pool.trials else {},
+                "workers_replaced": self.pool.restarts}
 
     # ------------------------------------------------------------------------------- interface
     def start(self, say=lambda line: print(line, flush=True)) -> float:
