@@ -60,6 +60,10 @@ RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir
 # The parts of a resumed run's config taken from the command; all the rest is the run's saved config.
 FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths",
                 "task.nominal_floor", "budget.confirm_trials", "budget.videos", "report")
+# The evaluator's keys that shape a trial's outcome (its collision geometry); every other evaluator key only
+# says where and how the trials run (evaluator=sim or ray, address, workers, timeouts), so a resume may
+# change them (results are identical on the pool and on Ray) and takes them from the command.
+EVALUATOR_RESULTS = ("collision", "coacd", "max_hull_vertices")
 # FROM_COMMAND keys a run saved before they existed takes from the command all the same: they only choose
 # what is made after the search (report.html's videos), never a result.
 AFTER_SEARCH = ("budget.videos", "report")
@@ -320,14 +324,15 @@ def resume_overrides(overrides: list[str]) -> list[str]:
     if not isinstance(run_dir, str):
         raise ResumeError(f"{resume[-1].input_line}: resume= takes one run folder")
     saved = SavedRun.load(Path(run_dir))
-    free = [o for o in given if _under(o.key_or_group, RESUME_FREE)]
+    free = [o for o in given if _under(o.key_or_group, RESUME_FREE) or _evaluator_free(o.key_or_group)]
     changed = [o for o in given if o.key_or_group != "resume" and o not in free and not saved.keeps(o)]
     if changed:
         what = ", ".join(f"{o.key_or_group} (the run's: {_shown_value(saved.value(o.key_or_group))}, "
                          f"given: {o.input_line.partition('=')[2] or 'deleted'})" for o in changed)
         raise ResumeError(
             f"resume={run_dir}: {what} would change the run, which keeps its own config ({RUN_CONFIG} there). "
-            f"Continue it with resume={run_dir} alone (allowed with it: {', '.join(RESUME_FREE)}.*), "
+            f"Continue it with resume={run_dir} alone (allowed with it: {', '.join(RESUME_FREE)}.*, evaluator=sim|ray "
+            f"and the evaluator's keys but {', '.join(EVALUATOR_RESULTS)}), "
             "or start a new run with these settings: the same command without resume=")
     own = [line for line in saved.overrides if not any(_under(_key(line), (o.key_or_group,)) for o in free)]
     return [*own, "hydra.output_subdir=.hydra/resume", *(o.input_line for o in free), resume[-1].input_line]
@@ -348,6 +353,11 @@ def own_config(cfg: DictConfig) -> DictConfig:
         if value is not _ABSENT and (OmegaConf.select(own, key, default=_ABSENT) is not _ABSENT
                                      or key in AFTER_SEARCH):
             OmegaConf.update(own, key, plain(value) if isinstance(value, DictConfig) else value, merge=False)
+    if isinstance(cfg.get("evaluator"), DictConfig):  # the backend of this command, the run's collision geometry
+        evaluator, saved_ev = plain(cfg.evaluator), own.get("evaluator") or {}
+        evaluator.update({k: plain(saved_ev[k]) if isinstance(saved_ev[k], DictConfig) else saved_ev[k]
+                          for k in EVALUATOR_RESULTS if k in saved_ev})
+        own.evaluator = evaluator
     own.resume = cfg.resume
     return own
 
@@ -580,6 +590,14 @@ def _key(override: str) -> str:
 def _under(key: str, prefixes: tuple[str, ...]) -> bool:
     """Whether ``key`` is one of ``prefixes`` or lies under one (``logger.mode``, ``hydra/launcher``)."""
     return any(key == p or key.startswith((f"{p}.", f"{p}/")) for p in prefixes)
+
+
+def _evaluator_free(key: str) -> bool:
+    """Whether a resume may give ``key``: the evaluator group (``evaluator=ray``) or one of its keys that do
+    not shape results (:data:`EVALUATOR_RESULTS`)."""
+    if key == "evaluator":
+        return True
+    return key.startswith("evaluator.") and not _under(key.removeprefix("evaluator."), EVALUATOR_RESULTS)
 
 
 def _shown_value(value) -> str:

@@ -112,6 +112,12 @@ def connect(address: str, cpus: float, gpus: float, object_store_mb: int | None)
             _check_reachable(address)
         kwargs = {"address": address, "logging_level": logging.WARNING, "log_to_driver": True}
     handler = signal.getsignal(signal.SIGTERM)  # ray.init installs its own; the CLI's must stay
+    # Ray warns on every start that token authentication is on; for a Ray of our own on this machine that
+    # says nothing (a cluster's own start prints it once, where its operator reads it)
+    quiet = logging.getLogger("ray._private.authentication.authentication_token_setup")
+    level = quiet.level
+    if address == "local":
+        quiet.setLevel(logging.ERROR)
     try:
         ray.init(**kwargs)
     except ConnectionError as exc:
@@ -126,6 +132,7 @@ def connect(address: str, cpus: float, gpus: float, object_store_mb: int | None)
         raise ClusterError(f"evaluator.address={address}: could not join the Ray cluster: "
                            f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}") from None
     finally:
+        quiet.setLevel(level)
         if threading.current_thread() is threading.main_thread() and handler is not None:
             signal.signal(signal.SIGTERM, handler)
     return True
