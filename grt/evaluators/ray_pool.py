@@ -187,9 +187,13 @@ class RayPool:
                  address: str = "local", num_cpus: float = 1, num_gpus: float = 0, resources: dict | None = None,
                  runtime_env: dict | None = None, object_store_mb: int | None = 512):
         if workers < 1:
-            raise ValueError(f"workers must be >= 1, got {workers}")
-        if num_cpus <= 0 and not num_gpus and not resources:
-            raise ValueError("evaluator.num_cpus must be > 0 (or give num_gpus or resources)")
+            raise ClusterError(f"budget.workers={workers}: give at least 1 actor")
+        if num_cpus < 0 or (num_gpus or 0) < 0:
+            raise ClusterError(f"evaluator.num_cpus={num_cpus}, evaluator.num_gpus={num_gpus}: resources cannot be "
+                               "negative")
+        if num_cpus == 0 and not num_gpus and not resources:
+            raise ClusterError("evaluator.num_cpus=0 with no num_gpus or resources would start unbounded actors; "
+                               "give each actor num_cpus=1 (one simulator uses one core)")
         self.task, self.policy = task, policy
         self.address, self.max_retries = str(address), int(max_retries)
         self.trial_timeout, self.startup_timeout = trial_timeout, startup_timeout
