@@ -117,7 +117,8 @@ def connect(address: str, cpus: float, gpus: float, object_store_mb: int | None)
     try:
         ray.init(**kwargs)
     except ConnectionError as exc:
-        raise ClusterError(f"evaluator.address={address}: the cluster refused this machine's connection: it has "
+        if _refused_token(exc):
+            raise ClusterError(f"evaluator.address={address}: the cluster refused this machine's connection: it has "
                                "token authentication on, and Ray sends its token to a given address only when told "
                                "to; set RAY_AUTH_MODE=token here and give the cluster's token (the head's "
                                "~/.ray/auth_token, or RAY_AUTH_TOKEN)") from None
@@ -135,6 +136,17 @@ def connect(address: str, cpus: float, gpus: float, object_store_mb: int | None)
         if threading.current_thread() is threading.main_thread() and handler is not None:
             signal.signal(signal.SIGTERM, handler)
     return True
+
+
+def _refused_token(exc: BaseException) -> bool:
+    """Whether a failed ``ray.init`` was refused for a missing or wrong authentication token."""
+    for _ in range(10):
+        if exc is None:
+            return False
+        if type(exc).__name__ == "AuthenticationError" or "InvalidAuthToken" in str(exc):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def actor_class():
