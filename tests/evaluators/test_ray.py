@@ -27,6 +27,8 @@ ray = pytest.importorskip("ray")
 HERE = Path(__file__).parent
 ROOT = HERE.parents[1]
 SEEDS = [11, 12, 13, 14, 15, 16]
+#: two actors on this machine's Ray: two cores (a local Ray gets no more CPUs than the machine has cores)
+two_cores = pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two CPU cores")
 
 
 def _modes(results):
@@ -140,6 +142,7 @@ def test_version_mismatch_is_one_line_with_both_versions():
 
 
 # --------------------------------------------------------------- toy session on the module's local Ray
+@two_cores
 def test_same_results_as_the_pool(toy_configs, u_mesh, u_deformed, reference, cache_dir, local_ray):
     task, policy = toy_configs()
     results, info = _ray_evaluate(task, policy, [u_mesh, u_deformed], cache_dir)
@@ -185,6 +188,7 @@ def test_a_session_that_cannot_be_built_is_a_clear_error(toy_configs, u_mesh, ca
         _ray_evaluate(task, policy, [u_mesh], cache_dir)
 
 
+@two_cores
 def test_more_workers_than_cpus_start_as_many_actors_as_fit(toy_configs, u_mesh, reference, cache_dir, local_ray,
                                                            caplog):
     """Two CPUs, two workers of two CPUs each: a warning with the numbers, and the run goes on with one actor."""
@@ -196,6 +200,7 @@ def test_more_workers_than_cpus_start_as_many_actors_as_fit(toy_configs, u_mesh,
     assert _modes([result]) == _modes(reference[:1])
 
 
+@two_cores
 def test_evaluation_json_says_where_the_trials_ran(toy_configs, u_mesh, tmp_path, local_ray):
     from grt.bench.grasp import compose
     from grt.cli.evaluate import evaluate
