@@ -9,7 +9,9 @@
 * the driver sends a job's trials one call each, two in flight per actor (no idle gap between trials),
   and counts a trial only when its result arrives: a dead actor or node is replaced and the seeds it had
   not finished run again; the seed that was running when it died is blamed, and one that kills actors
-  more than ``max_retries`` times is a ``sim_error``; a call silent past ``trial_timeout`` kills its actor;
+  more than ``max_retries`` times is a ``sim_error`` (an actor that dies can take the answer of its last
+  finished trial with it: after a death with two trials unanswered, the job's trials go one at a time
+  and only the next death blames a seed); a call silent past ``trial_timeout`` kills its actor;
 * a trial's outcome depends only on (mesh, seed), and jobs are cut as the pool cuts them, so scores and
   per-trial outcomes equal the pool's bit for bit;
 * only the driver writes the run folder; Ctrl-C stops the actors (and the Ray it started) and the journal
@@ -121,6 +123,11 @@ def connect(address: str, cpus: float, gpus: float, object_store_mb: int | None)
     try:
         ray.init(**kwargs)
     except ConnectionError as exc:
+        if _refused_token(exc):
+            raise ClusterError(f"evaluator.address={address}: the cluster refused this machine's connection: it has "
+                               "token authentication on, and Ray sends its token to a given address only when told "
+                               "to; set RAY_AUTH_MODE=token here and give the cluster's token (the head's "
+                               "~/.ray/auth_token, or RAY_AUTH_TOKEN)") from None
         raise ClusterError(f"evaluator.address={address}: no running Ray cluster found ({' '.join(str(exc).split())[:200]}); "
                            f"{START_CLUSTER}") from None
     except Exception as exc:
@@ -136,6 +143,17 @@ def connect(address: str, cpus: float, gpus: float, object_store_mb: int | None)
         if threading.current_thread() is threading.main_thread() and handler is not None:
             signal.signal(signal.SIGTERM, handler)
     return True
+
+
+def _refused_token(exc: BaseException) -> bool:
+    """Whether a failed ``ray.init`` was refused for a missing or wrong authentication token."""
+    for _ in range(10):
+        if exc is None:
+            return False
+        if type(exc).__name__ == "AuthenticationError" or "InvalidAuthToken" in str(exc):
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def actor_class():
@@ -222,6 +240,7 @@ class RayPool:
         self.restarts = self.startup_failures = 0
         self.trials_per_node: Counter = Counter()
         self.nodes_seen: dict[str, dict] = {}
+        self._careful: set[int] = set()  # jobs whose seeds go one call at a time (see _replace)
         self._cls = None
 
     # ---------------------------------------------------------------------------- cluster
@@ -290,6 +309,7 @@ class RayPool:
         """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order."""
         self.start()
         self._geometry: dict[int, object] = {}
+        self._careful = set()
         pending, crashes = deque(jobs), {}
         try:
             while pending or any(a.job is not None for a in self.actors):
@@ -310,7 +330,8 @@ class RayPool:
                 a.inflight.append((ref, "load"))
                 a.queued, a.since = 0, time.monotonic()
             if a.job is not None:
-                while a.queued < min(DEPTH, len(a.job.seeds)):
+                depth = 1 if a.job.job_id in self._careful else DEPTH
+                while a.queued < min(depth, len(a.job.seeds)):
                     seed = a.job.seeds[a.queued]
                     a.inflight.append((a.handle.trial.remote(seed), seed))
                     a.queued += 1
@@ -336,8 +357,10 @@ class RayPool:
                         self._replace(a, on_trial, pending, crashes, f"did not start in {self.startup_timeout:g} s")
                     continue
                 while a.inflight and a.inflight[0][0] in done:
-                    ref, what = a.inflight.popleft()
-                    self._answer(a, what, ray.get(ref), on_trial)
+                    ref, what = a.inflight[0]
+                    answer = ray.get(ref)  # raises when the actor died: the call stays unanswered
+                    a.inflight.popleft()
+                    self._answer(a, what, answer, on_trial)
                     a.since = time.monotonic()
                 if a.inflight and self._late(a, self.trial_timeout, a.since):
                     log.warning("Ray actor on %s silent for too long: killing it", node_label(a.node))
@@ -347,7 +370,8 @@ class RayPool:
                 why = "died" if isinstance(exc, ray.exceptions.RayActorError) else f"failed ({type(exc).__name__})"
                 where = f" on {node_label(a.node)}" if a.node else ""
                 self._kill(a)
-                self._replace(a, on_trial, pending, crashes, f"{why}{where}")
+                self._replace(a, on_trial, pending, crashes, f"{why}{where}",
+                              died=isinstance(exc, ray.exceptions.RayActorError))
 
     @staticmethod
     def _late(a: _Actor, limit: float | None, since: float) -> bool:
@@ -392,8 +416,14 @@ class RayPool:
         with contextlib.suppress(Exception):
             _ray().kill(a.handle, no_restart=True)
 
-    def _replace(self, a: _Actor, on_trial, pending: deque, crashes: dict, why: str) -> None:
-        """Start a new actor in ``a``'s place; blame the seed it was running, re-queue the rest of its job."""
+    def _replace(self, a: _Actor, on_trial, pending: deque, crashes: dict, why: str, died: bool = False) -> None:
+        """Start a new actor in ``a``'s place; blame the seed it was running, re-queue the rest of its job.
+
+        An actor sends a call's answer after the call returned, so one that died (``died``) may have taken
+        the answer of the trial before the fatal one with it: with two trials unanswered, which one killed it
+        is unknown. Then no seed is blamed, and the job's seeds go one call at a time from then on (no answer
+        can be lost: the next call is sent once the last answer came), so a next death names its seed.
+        """
         job, self.restarts = a.job, self.restarts + 1
         if job is None and not a.ready:
             self.startup_failures += 1
@@ -401,6 +431,12 @@ class RayPool:
                 self.close()
                 raise RuntimeError(f"evaluator actors keep dying while starting: last one {why}")
             log.warning("Ray actor %s while starting; starting another", why)
+        elif job is not None and job.seeds and died and job.job_id not in self._careful \
+                and sum(what != "load" for _, what in a.inflight) > 1:
+            self._careful.add(job.job_id)
+            log.warning("Ray actor %s on candidate %d, seed %s or %s; starting another (the job's trials now one "
+                        "at a time)", why, job.candidate, *[w for _, w in a.inflight if w != "load"][:2])
+            pending.appendleft(job)
         elif job is not None and job.seeds:
             key = (job.candidate, job.seeds[0])
             crashes[key] = crashes.get(key, 0) + 1

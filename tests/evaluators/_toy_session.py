@@ -3,13 +3,14 @@
 The "trial" drops seeded random points into the object's bounding box and asks whether enough of
 them land inside the convex collision parts: it depends on the mesh, the parts and the seed only.
 Switches make it misbehave on purpose: raise on a seed, kill its own process on a seed (always, or
-only the first time, remembered through a marker file), or fail to build. ``continuous=True`` scores a
+only the first time, remembered through a marker file), hang on a seed (likewise), or fail to build. ``continuous=True`` scores a
 trial by a length in meters (the filled fraction times the object's height) instead of 0/1.
 """
 
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +31,12 @@ class ToySession(TaskSession):
 
     def __init__(self, policy: ToyPolicy, samples: int = 400, raise_on: int | None = None,
                  crash_on: int | None = None, crash_once_marker: str | None = None, fail_build: bool = False,
-                 continuous: bool = False):
+                 continuous: bool = False, hang_on: int | None = None, hang_once_marker: str | None = None):
         if fail_build:
             raise RuntimeError("toy session refuses to build")
         self.policy, self.samples = policy, int(samples)
         self.raise_on, self.crash_on, self.marker = raise_on, crash_on, crash_once_marker
+        self.hang_on, self.hang_marker = hang_on, hang_once_marker
         self.continuous = bool(continuous)
         self.equations: list[np.ndarray] = []
         self.bounds = np.zeros((2, 3))
@@ -50,6 +52,10 @@ class ToySession(TaskSession):
             if self.marker is not None:
                 Path(self.marker).touch()
             os._exit(3)  # a hard crash: no exception, no cleanup
+        if seed == self.hang_on and (self.hang_marker is None or not Path(self.hang_marker).exists()):
+            if self.hang_marker is not None:
+                Path(self.hang_marker).touch()
+            time.sleep(3600)  # a hang: the process lives on and says nothing
         if seed == self.raise_on:
             raise RuntimeError(f"physics exploded on seed {seed}")
         rng = np.random.default_rng(seed)
