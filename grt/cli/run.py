@@ -5,6 +5,7 @@ Examples::
     python -m grt.run                                   # grasp task, default object, budget=quick
     python -m grt.run object=bottle selector=all optimizer=cma_es budget=paper
     python -m grt.run -m selector=heuristic,all optimizer=topdm,gaussian budget=smoke
+    python -m grt.run -m hydra/launcher=slurm experiment=table1_insertion   # the jobs on SLURM (docs/cluster.md)
     python -m grt.run resume=outputs/grasp/mug/heuristic-topdm/2026-11-23_01-00-00
 
 ``main`` resolves the config once and calls :func:`grt.runner.run`, a plain function tests import; it
@@ -20,7 +21,10 @@ Every refusal is one ``error: ...`` line on stderr (exit code 2); a run refused 
 leaves no folder behind (:func:`grt.runfolder.discard_new`). The folder is made and locked before Hydra
 writes into it (:class:`grt.runfolder.RunFolderCallback`): a second process in it is refused, naming the
 first's PID, and a new run never overwrites a run's record. A full disk or a folder that cannot be written
-mid-run is one line naming the disk and the command that continues the run (exit code 1).
+mid-run is one line naming the disk and the command that continues the run (exit code 1). A sweep's job
+that fails writes ``error.txt`` in its folder (with the command that continues it, if it had begun) and the
+sweep goes on; under the submitit launcher (``hydra/launcher=slurm``, :mod:`grt.cli.launchers`) a job that
+died without a result (killed, out of time or memory) ends the sweep's command with one line naming it.
 """
 
 from __future__ import annotations
