@@ -23,6 +23,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from grt.errors import UserError
 from grt.evaluators.collision import make_collision
+from grt.evaluators.sim import SimEvaluator
 from grt.geometry.deform import ShapeDeformer, deformer_options
 from grt.geometry.mesh import load_mesh
 from grt.geometry.prepare import MeshSettings
@@ -77,6 +78,22 @@ def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tu
     collision = make_collision(ev.collision, nominal, OmegaConf.to_container(ev.coacd, resolve=True),
                                f"{cache_dir}/coacd", ev.max_hull_vertices)
     return nominal, deformer, collision
+
+
+def make_evaluator(cfg: DictConfig, task: dict, policy: dict, progress: bool = True) -> SimEvaluator:
+    """The blue-team's simulator evaluator: the one its config chooses (``evaluator=sim``, the default, or
+    ``evaluator=ray``, e.g. with ``evaluator.address=HOST:PORT`` to run the episodes on a Ray cluster),
+    with the app's ``workers`` (``conf/blueteam.yaml``). Every geometry of a study comes with its convex
+    parts (CoACD, as the paper makes them), so the evaluator never decomposes one itself.
+
+    Args:
+        cfg: the ``blueteam`` app's config (``evaluator``, ``workers``, ``paths``).
+        task, policy: the red-team run's task and policy configs (plain).
+        progress: show a progress bar per evaluation.
+    """
+    from hydra.utils import instantiate
+
+    return instantiate(cfg.evaluator)(task=task, policy=policy, collision="coacd", progress=progress)
 
 
 def trainable_checkpoint(policy_cfg: dict) -> str:

@@ -16,10 +16,9 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig
 
-from grt.blueteam.core import Geometry, choose_confirmed, plot_validation, rank_candidates
+from grt.blueteam.core import Geometry, choose_confirmed, make_evaluator, plot_validation, rank_candidates
 from grt.blueteam.guard import GuardRule, NominalGuard, episodes, read_rows
 from grt.config import plain
-from grt.evaluators.sim import SimEvaluator
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.rl.anchor import NominalAnchor
 from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train
@@ -36,7 +35,7 @@ def fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: di
     confirmed on fresh episodes; returns the policy file.
 
     Args:
-        cfg: the ``blueteam`` app's config (``blueteam``, ``workers``).
+        cfg: the ``blueteam`` app's config (``blueteam``, ``workers``, ``evaluator``).
         task, policy: the red-team run's task and policy configs (plain).
         ckpt, checkpoint: the starting policy's checkpoint dict and its path.
         shapes: the nominal object first, then the CrashShapes trained on.
@@ -52,7 +51,7 @@ def fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: di
                      workers=cfg.workers, seed=int(bt.seed), weights=weights, max_steps=bt.max_steps)
     anchor = make_anchor(cfg, task, checkpoint, shapes[0])
     # validation episodes run on their own workers (idle while PPO collects), two at a time on 2 cores
-    evaluator = SimEvaluator(task=task, policy=policy, workers=cfg.workers, collision="coacd", progress=False)
+    evaluator = make_evaluator(cfg, task, policy, progress=False)  # evaluator=sim|ray
     rule = GuardRule.of(bt, task)
     guard = NominalGuard(out_dir, policy, shapes, val_seeds, evaluator, rule, int(bt.val_trials),
                          int(bt.val_trials_nominal or bt.val_trials), int(bt.confirm.candidates))

@@ -29,6 +29,7 @@ from grt.blueteam.core import (
     distinct,
     failing_records,
     load_run,
+    make_evaluator,
     name_of,
     run_geometry,
     select_crashshapes,
@@ -37,7 +38,6 @@ from grt.blueteam.core import (
 )
 from grt.blueteam.finetune import fine_tune
 from grt.config import plain
-from grt.evaluators.sim import SimEvaluator
 from grt.policies.rsl_rl import load_checkpoint
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
@@ -52,7 +52,7 @@ def blueteam(cfg: DictConfig, out_dir: Path, red_team: RedTeam | None = None) ->
     """Run one blue-team study (see the module docstring); returns ``{"rows": [...], ...}``.
 
     Args:
-        cfg: the ``blueteam`` app's config (``run``, ``blueteam``, ``workers``, ``paths``).
+        cfg: the ``blueteam`` app's config (``run``, ``blueteam``, ``workers``, ``evaluator``, ``paths``).
         out_dir: the study's folder.
         red_team: runs the re-red-team (``blueteam.rered.enabled``); the app passes GRT's red-team run.
 
@@ -75,7 +75,7 @@ def blueteam(cfg: DictConfig, out_dir: Path, red_team: RedTeam | None = None) ->
     val_seeds = episode_seeds(seed + 2000, max(int(bt.val_trials), int(bt.val_trials_nominal or bt.val_trials)))
     confirm_seeds = episode_seeds(seed + 3000, int(bt.confirm.trials))
     everything = [nominal, *crash, *heldout]
-    scores = _Scores(out_dir / "scores.json", everything, test_seeds, cfg.workers)
+    scores = _Scores(out_dir / "scores.json", everything, test_seeds, cfg)
     before = scores.get("before", task, policy_cfg)
     fine_tuned = fine_tune(cfg, out_dir, task, policy_cfg, ckpt, checkpoint, [nominal, *crash], val_seeds,
                            confirm_seeds)
@@ -86,7 +86,7 @@ def blueteam(cfg: DictConfig, out_dir: Path, red_team: RedTeam | None = None) ->
     result = {"run": str(run_dir), "checkpoint": str(fine_tuned), "rows": rows,
               "heldout": [g.name for g in heldout]}
     if bt.rered.enabled:
-        result["rered"] = rered(run_cfg, run_dir, fine_tuned, out_dir / "rered", red_team)
+        result["rered"] = rered(run_cfg, run_dir, fine_tuned, out_dir / "rered", red_team, cfg.evaluator)
     (out_dir / "blueteam.json").write_text(json.dumps(result, indent=1, default=str))
     return result
 
@@ -131,14 +131,13 @@ class _Scores:
     """``scores.json``: every geometry's score and per-trial outcomes on the same seeds, ``before`` and
     ``after`` the fine-tune; a side already scored (a resumed study) is read back, not simulated."""
 
-    def __init__(self, path: Path, geometries: list[Geometry], seeds: list[int], workers: int):
-        self.path, self.geometries, self.seeds, self.workers = path, geometries, seeds, workers
+    def __init__(self, path: Path, geometries: list[Geometry], seeds: list[int], cfg: DictConfig):
+        self.path, self.geometries, self.seeds, self.cfg = path, geometries, seeds, cfg
         self.data = json.loads(path.read_text()) if path.exists() else {}
 
     def get(self, side: str, task: dict, policy: dict) -> dict:
         if side not in self.data:
-            with SimEvaluator(task=task, policy=policy, workers=self.workers, collision="coacd",
-                              progress=True) as ev:
+            with make_evaluator(self.cfg, task, policy) as ev:
                 results = ev.evaluate([g.mesh for g in self.geometries], self.seeds,
                                       parts=[g.parts for g in self.geometries])
             self.data[side] = {g.name: {"score": r.score, "role": g.role, "outcomes": r.outcomes}
@@ -161,15 +160,38 @@ def _table_rows(policy: str, crash: list[Geometry], heldout: list[Geometry], bef
              "red_team_score": g.red_team_score, "trials": trials} for g in crash]
 
 
-def rered(run_cfg: DictConfig, run_dir: Path, checkpoint: Path, out: Path, red_team: RedTeam) -> dict:
-    """A red-team run against the fine-tuned policy with the original budget and seed."""
-    cfg = OmegaConf.create(OmegaConf.to_container(run_cfg, resolve=False))
-    cfg.policy.checkpoint = str(checkpoint)
-    cfg.paths.output_dir = str(out)
-    cfg.resume = None
+def rered(run_cfg: DictConfig, run_dir: Path, checkpoint: Path, out: Path, red_team: RedTeam,
+          evaluator: DictConfig | None = None) -> dict:
+    """A red-team run against the fine-tuned policy with the original budget and seed.
+
+    ``evaluator``: the blue-team's evaluator config (:func:`rered_config`); ``None`` keeps the run's.
+    """
+    cfg = rered_config(run_cfg, checkpoint, out, evaluator)
     original = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() else {}
     start = time.perf_counter()
     summary = red_team(cfg)
     keys = ("s0", "best_score", "final_drop", "iter_at_50", "reached_50", "auc")
     return {"before": {k: original.get(k) for k in keys}, "after": {k: summary.get(k) for k in keys},
             "wall_s": round(time.perf_counter() - start, 1), "folder": str(out)}
+
+
+#: evaluator keys a candidate's trials depend on (its collision parts): a re-red-team keeps the run's
+SEARCH_EVALUATOR_KEYS = ("collision", "coacd", "max_hull_vertices")
+
+
+def rered_config(run_cfg: DictConfig, checkpoint: Path, out: Path, evaluator: DictConfig | None = None) -> DictConfig:
+    """The re-red-team's config: the red-team run's own (budget, seed, search), the fine-tuned policy, a
+    new folder, and the blue-team's evaluator (``evaluator``, the app's ``evaluator`` node: its backend,
+    e.g. a Ray cluster, and its workers), but the run's collision settings
+    (:data:`SEARCH_EVALUATOR_KEYS`): neither the backend nor the number of workers changes a result."""
+    cfg = OmegaConf.create(OmegaConf.to_container(run_cfg, resolve=False))
+    cfg.policy.checkpoint = str(checkpoint)
+    cfg.paths.output_dir = str(out)
+    cfg.resume = None
+    if evaluator is not None:
+        ev = OmegaConf.to_container(evaluator, resolve=True)
+        own = OmegaConf.to_container(run_cfg.evaluator, resolve=False)
+        ev.update({k: own[k] for k in SEARCH_EVALUATOR_KEYS if k in own})
+        cfg.evaluator = ev
+        cfg.budget.workers = ev["workers"]
+    return cfg

@@ -14,6 +14,7 @@ an imported module, which it always does here (the ``python -m`` shims and conso
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import signal
 import sys
@@ -26,6 +27,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
 import grt.runfolder  # noqa: F401 - registers the resume_or resolver of hydra.run.dir before composition
+from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resolvers too
 from grt.config import BudgetSchema, budget_hint, unknown_budget_key
 from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
@@ -85,7 +87,7 @@ def exit_on_user_error(*also: type[BaseException]):
         print("interrupted (Ctrl-C)", file=sys.stderr)
         raise SystemExit(INTERRUPTED) from None
     except Exception as exc:
-        found = find_user_error(exc, also) or _compose_error(exc)
+        found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc)
         if found is None:
             raise
         print(f"error: {found}", file=sys.stderr)
@@ -173,6 +175,8 @@ def _compose_error(exc: BaseException) -> str | None:
     in_budget = getattr(cause, "object_type", None) is BudgetSchema
     if isinstance(cause, (ConfigKeyError, ConfigAttributeError)) and in_budget:  # Hydra would hint at '+'
         return unknown_budget_key(key.split(".", 1)[1])
+    if isinstance(cause, (ConfigKeyError, ConfigAttributeError)) and key.startswith("hydra.launcher."):
+        return unknown_launcher_key(key, getattr(cause, "object_type", None))  # '+' would fail at launch
     text = one_line(str(exc))
     if isinstance(exc, OverrideParseException):
         return quoting_hint(exc.override, text)
@@ -180,6 +184,18 @@ def _compose_error(exc: BaseException) -> str | None:
         text += "; " + one_line(str(cause))
     hint = budget_hint(key)
     return f"{text}; {hint}" if hint else text
+
+
+def unknown_launcher_key(key: str, schema) -> str:
+    """One line for a setting the chosen Hydra launcher does not have (``hydra.launcher.partion=cpu``)."""
+    names = sorted(f.name for f in dataclasses.fields(schema) if not f.name.startswith("_")) \
+        if dataclasses.is_dataclass(schema) else []
+    text = f"{key}: the launcher has no such setting"
+    if names:
+        text += f" (its settings: {', '.join(names)})"
+    if "additional_parameters" in names:
+        text += f"; any other sbatch option: +hydra.launcher.additional_parameters.{key.rsplit('.', 1)[1]}=VALUE"
+    return text
 
 
 def quoting_hint(override: str, parser_message: str) -> str:
@@ -196,6 +212,18 @@ def quoting_hint(override: str, parser_message: str) -> str:
     return (f"cannot parse the override {override!r} ({parser_message.split(';')[0]}): a value with spaces, "
             f"non-ASCII letters or any of ()[]{{}},'\" must be quoted for Hydra, inside the shell's quotes: "
             f"{shell}")
+
+
+def _launcher_error(exc: BaseException) -> UserError | None:
+    """One line for submitit's own refusal of a SLURM launcher where SLURM is missing (``grt.run`` refuses one
+    given on its command line before Hydra starts: :func:`grt.cli.launchers.check_launcher`)."""
+    for _ in range(10):
+        if exc is None:
+            return None
+        if isinstance(exc, RuntimeError) and str(exc).startswith(NO_SLURM):
+            return no_slurm("submitit_slurm")
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def _setup_error(exc: OSError) -> OutputError | None:

@@ -5,6 +5,7 @@ Examples::
     python -m grt.run                                   # grasp task, default object, budget=quick
     python -m grt.run object=bottle selector=all optimizer=cma_es budget=paper
     python -m grt.run -m selector=heuristic,all optimizer=topdm,gaussian budget=smoke
+    python -m grt.run -m hydra/launcher=slurm experiment=table1_insertion   # the jobs on SLURM (docs/cluster.md)
     python -m grt.run resume=outputs/grasp/mug/heuristic-topdm/2026-11-23_01-00-00
 
 ``main`` resolves the config once and calls :func:`grt.runner.run`, a plain function tests import; it
@@ -20,7 +21,10 @@ Every refusal is one ``error: ...`` line on stderr (exit code 2); a run refused 
 leaves no folder behind (:func:`grt.runfolder.discard_new`). The folder is made and locked before Hydra
 writes into it (:class:`grt.runfolder.RunFolderCallback`): a second process in it is refused, naming the
 first's PID, and a new run never overwrites a run's record. A full disk or a folder that cannot be written
-mid-run is one line naming the disk and the command that continues the run (exit code 1).
+mid-run is one line naming the disk and the command that continues the run (exit code 1). A sweep's job
+that fails writes ``error.txt`` in its folder (with the command that continues it, if it had begun) and the
+sweep goes on; under the submitit launcher (``hydra/launcher=slurm``, :mod:`grt.cli.launchers`) a job that
+died without a result (killed, out of time or memory) ends the sweep's command with one line naming it.
 """
 
 from __future__ import annotations
@@ -38,9 +42,18 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
+from grt.cli.launchers import check_launcher, unfinished_job
 from grt.config import validate
 from grt.errors import INTERRUPTED, TERMINATED, Terminated
-from grt.runfolder import discard_new, interrupted, own_config, resume_overrides, storage_error
+from grt.runfolder import (
+    discard_new,
+    interrupted,
+    is_run_folder,
+    own_config,
+    resume_command,
+    resume_overrides,
+    storage_error,
+)
 from grt.runner import run
 
 log = logging.getLogger("grt.run")
@@ -65,9 +78,10 @@ def main(cfg: DictConfig) -> float:
         if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
             out = Path(cfg.paths.output_dir)  # the job's own folder (never a refused resume's)
             out.mkdir(parents=True, exist_ok=True)
-            (out / "error.txt").write_text(traceback.format_exc())
-            log.error("job failed (%s: %s); details in %s; the sweep goes on",
-                      type(exc).__name__, exc, out / "error.txt")
+            again = (f"; continue it with: {resume_command(out)}" if is_run_folder(out) else "")
+            (out / "error.txt").write_text(traceback.format_exc() + again.lstrip("; ") + "\n" * bool(again))
+            log.error("job failed (%s: %s); details in %s%s; the sweep goes on",
+                      type(exc).__name__, exc, out / "error.txt", again)
             return math.nan
         found = find_user_error(exc)
         if found is not None:  # refused: one line on stderr, and a run that saved nothing leaves nothing
@@ -96,8 +110,21 @@ def cli(argv: list[str] | None = None) -> None:
     """
     parser = get_args_parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
-    if any("resume=" in arg for arg in args.overrides):
-        with exit_on_user_error():
+    with exit_on_user_error():
+        launches = args.multirun and not (args.help or args.hydra_help)
+        if launches:  # hydra/launcher=slurm where SLURM is missing: refused before anything is written
+            check_launcher(args.overrides)
+        if any("resume=" in arg for arg in args.overrides):
             args.overrides = resume_overrides(args.overrides)
-    run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
-                               config_name="run"))
+
+    def launch() -> None:
+        try:
+            _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR, config_name="run")
+        except Exception as exc:
+            line = unfinished_job(exc)  # a submitit job that died (killed, out of time or memory)
+            if line is None:
+                raise
+            _say(f"error: {line}")
+            raise SystemExit(1) from None
+
+    run_cli(launch)

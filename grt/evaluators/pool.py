@@ -86,6 +86,9 @@ def build_session(task: dict, policy: dict):
 def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None = None) -> None:
     """Worker process entry: build the session, then run jobs until told to stop (``None``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the main process's to report; it stops us
+    # ... and so is a scheduler's warning before its time limit: SLURM signals every process of the job step
+    # (submitit's --signal=USR2@120, conf/hydra/launcher/slurm.yaml), whose default action would kill us
+    signal.signal(signal.SIGUSR2, signal.SIG_IGN)
     try:
         session = build_session(task, policy)
     except BaseException as exc:

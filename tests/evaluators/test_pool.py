@@ -82,6 +82,19 @@ def test_a_transient_crash_is_rerun(toy_configs, u_mesh, reference, cache_dir, t
     assert _modes([result]) == _modes(reference[:1])
 
 
+def test_a_schedulers_time_limit_warning_does_not_kill_the_workers(toy_configs, u_mesh, reference, cache_dir):
+    # SLURM signals every process of a job before its time limit (submitit's --signal=USR2@120): the run's
+    # own process decides what to do (requeue, or stop with the command that continues it); its workers stay
+    task, policy = toy_configs()
+    with SimEvaluator(task, policy, workers=1, nominal=u_mesh, progress=False, cache_dir=str(cache_dir)) as ev:
+        (first,) = ev.evaluate([u_mesh], SEEDS)
+        (pid,) = {t.info["pid"] for t in first.trials}
+        os.kill(pid, signal.SIGUSR2)
+        (again,) = ev.evaluate([u_mesh], SEEDS)
+        assert ev.pool.restarts == 0 and {t.info["pid"] for t in again.trials} == {pid}
+    assert _modes([again]) == _modes(reference[:1])
+
+
 def test_a_session_that_cannot_be_built_is_a_clear_error(toy_configs, u_mesh, cache_dir):
     task, policy = toy_configs(fail_build=True)
     with pytest.raises(RuntimeError, match="toy session refuses to build"):
