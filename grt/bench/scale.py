@@ -12,9 +12,9 @@ the real simulator):
   Ray, then ``W`` actors build theirs);
 * overheads, each for both backends: the driver's CPU seconds per trial (``time.process_time`` of this
   process over an evaluation, Ray's threads in it included); the idle seconds per call (wall time
-  minus the workers' mean busy seconds: dispatch, results, the wait for the slower chunk); the load of
-  a candidate per job (worker busy seconds not inside a trial); and Ray's round trip of an actor call
-  that does nothing (``SimActor.pid``, ``--calls`` calls one after another);
+  minus the workers' mean busy seconds: dispatch, results, the wait for the slower chunk); the workers'
+  seconds outside trials per job (the candidate's load; for Ray also each trial's call); and Ray's round
+  trip of an actor call that does nothing (``SimActor.pid``, ``--calls`` calls one after another);
 * a PROJECTION (computed, not measured) of the paper protocol's wall time per object-policy pair on
   1-32 nodes of ``--cores-per-node`` cores, from these figures (insertion) and from the per-trial rates
   docs/benchmarks.md records for the other tasks; see :func:`project` for the model and its assumptions.
@@ -86,7 +86,7 @@ def summarize(calls: list[dict], workers: int) -> dict:
         "trials_per_s_each": [c["trials"] / c["wall_s"] for c in calls],
         "driver_cpu_ms_per_trial": 1e3 * sum(c["driver_cpu_s"] for c in calls) / trials,
         "idle_s_per_call": (wall - busy / workers) / len(calls),
-        "load_s_per_job": (busy - in_trials) / sum(c["jobs"] for c in calls),
+        "non_trial_s_per_job": (busy - in_trials) / sum(c["jobs"] for c in calls),
         "trial_s_mean": in_trials / trials,
         "trial_s_max": max(c["trial_s_max"] for c in calls),
         "steps_per_trial": sum(c["steps"] for c in calls) / trials,
@@ -158,6 +158,10 @@ def project(costs: dict[str, dict], protocol: dict, cores: int, confirm_trials: 
     iterations are sequential (each population needs the previous one's scores). ``now``: as GRT runs
     the search today, one candidate per evaluate call, so at most ``trials`` workers are busy at once;
     ``batched``: a whole population per call (at most population x trials busy workers), not implemented.
+    Not modelled: the network between nodes (Ray's calls are pipelined, two per actor), a driver whose
+    poll grows with the calls in flight (its CPU per trial is measured with ``W`` actors only), the
+    driver's deformation and optimizer steps (milliseconds per candidate), ``collision=coacd`` (seconds per
+    candidate), implausible candidates (not simulated: they shorten a run).
     """
     pop, iters, top_k = protocol["population"], protocol["iterations"], protocol["top_k"]
     out = {}
@@ -191,12 +195,13 @@ def _span(pair: list[float]) -> str:
     return low if low == high else f"{low}-{high}"
 
 
-def main(argv: list[str] | None = None) -> dict:
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="python -m grt.bench scale", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--workers", type=int, default=2, help="workers of each backend (default 2)")
     ap.add_argument("--trials", type=int, default=64, help="trials per timed evaluate call (default 64)")
-    ap.add_argument("--repeats", type=int, default=3, help="timed calls per backend, alternated (default 3)")
+    ap.add_argument("--repeats", type=int, default=4,
+                    help="timed calls per backend, alternated: pool first, then Ray first, ... (default 4)")
     ap.add_argument("--address", default="local",
                     help="Ray: local (started here, default), auto, HOST:PORT or ray://HOST:PORT (a cluster)")
     ap.add_argument("--calls", type=int, default=200, help="no-op actor calls timed (default 200)")
@@ -211,7 +216,12 @@ def main(argv: list[str] | None = None) -> dict:
             ap.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.confirm_trials < 0:
         ap.error(f"--confirm-trials must be >= 0, got {args.confirm_trials}")
+    return args
 
+
+def measure(args: argparse.Namespace) -> tuple[dict, dict[str, list[dict]], dict]:
+    """Start both backends, time them alternately and Ray's no-op calls: the figures, each backend's
+    timed calls, and the task config."""
     from omegaconf import OmegaConf
 
     from grt.evaluators.ray_pool import RayEvaluator
@@ -226,10 +236,12 @@ def main(argv: list[str] | None = None) -> dict:
     seeds, warm = episode_seeds(42, args.trials), episode_seeds(7, args.workers)
     common = {"task": task, "policy": policy, "workers": args.workers, "nominal": mesh, "progress": False,
               "cache_dir": cache}
-    _say(f"scale: insertion, {args.policy}, nominal {cfg.object}; {args.workers} workers each, {args.trials} trials "
-         f"x {args.repeats} calls per backend; load average {' '.join(map(str, load_before))}")
+    _say(f"scale: insertion, {args.policy}, nominal {cfg.object}; {args.workers} workers each, {args.trials} "
+         f"trials x {args.repeats} calls per backend; load average {' '.join(map(str, load_before))}")
     figures: dict = {"task": "insertion", "policy": args.policy, "object": str(cfg.object), "workers": args.workers,
-                     "trials": args.trials, "repeats": args.repeats, "address": args.address}
+                     "trials": args.trials, "repeats": args.repeats, "address": args.address,
+                     "loadavg_before": load_before}
+    calls: dict[str, list[dict]] = {"pool": [], "ray": []}
     pool = ray_ev = None
     try:
         start = time.perf_counter()
@@ -248,7 +260,6 @@ def main(argv: list[str] | None = None) -> dict:
              f"{ray_ev.workers} actors ready {startup_s - connect_s:.1f} s later")
         for ev in (pool, ray_ev):  # each worker's first trial (shader and allocator warm-up): not timed
             ev.evaluate([mesh], warm)
-        calls: dict[str, list[dict]] = {"pool": [], "ray": []}
         for r in range(args.repeats):
             order = ("pool", "ray") if r % 2 == 0 else ("ray", "pool")
             for name in order:
@@ -257,69 +268,87 @@ def main(argv: list[str] | None = None) -> dict:
                 f"{n} {calls[n][-1]['trials'] / calls[n][-1]['wall_s']:.2f} trials/s" for n in order))
         median, p95 = noop_round_trip_ms(ray_ev, args.calls)
         _say(f"ray: no-op actor call {median:.2f} ms median, {p95:.2f} ms p95 ({args.calls} calls)")
-        figures["ray_backend"] = ray_ev.backend_info()
+        figures.update(ray_noop_call_ms_median=round(median, 3), ray_noop_call_ms_p95=round(p95, 3),
+                       ray_backend=ray_ev.backend_info())
     finally:
         for ev in (ray_ev, pool):
             if ev is not None:
                 ev.close()
-    stats = {name: summarize(c, args.workers) for name, c in calls.items()}
-    ratio = stats["ray"]["trials_per_s"] / stats["pool"]["trials_per_s"]
-    figures.update(
-        pool_trials_per_s=round(stats["pool"]["trials_per_s"], 3), ray_trials_per_s=round(stats["ray"]["trials_per_s"], 3),
-        ray_over_pool=round(ratio, 3),
-        same_outcomes=all(c["outcomes"] == calls["pool"][0]["outcomes"] for c in calls["pool"] + calls["ray"]),
-        success_rate=round(float(np.mean([m == "success" for _, m, _ in calls["pool"][0]["outcomes"]])), 3),
-        ray_noop_call_ms_median=round(median, 3), ray_noop_call_ms_p95=round(p95, 3))
-    for name in ("pool", "ray"):
-        s = stats[name]
-        figures[f"{name}_trials_per_s_each"] = [round(x, 3) for x in s["trials_per_s_each"]]
-        for key in ("driver_cpu_ms_per_trial", "idle_s_per_call", "load_s_per_job", "trial_s_mean", "trial_s_max",
-                    "worker_s_per_trial"):
-            figures[f"{name}_{key}"] = round(s[key], 4)
-    figures["steps_per_trial"] = round(stats["ray"]["steps_per_trial"], 1)
-    figures["ray_extra_idle_s_per_call"] = round(stats["ray"]["idle_s_per_call"] - stats["pool"]["idle_s_per_call"], 4)
-    figures["ray_extra_driver_cpu_ms_per_trial"] = round(
-        stats["ray"]["driver_cpu_ms_per_trial"] - stats["pool"]["driver_cpu_ms_per_trial"], 4)
+    return figures, calls, task
 
-    protocol = _protocol()
-    ray_s = stats["ray"]
+
+def compare(figures: dict, calls: dict[str, list[dict]], workers: int) -> dict[str, dict]:
+    """Add the rates, their ratio and the overheads of both backends to ``figures``; returns the stats."""
+    stats = {name: summarize(c, workers) for name, c in calls.items()}
+    pool, ray = stats["pool"], stats["ray"]
+    first = calls["pool"][0]["outcomes"]
+    figures.update(
+        pool_trials_per_s=round(pool["trials_per_s"], 3), ray_trials_per_s=round(ray["trials_per_s"], 3),
+        ray_over_pool=round(ray["trials_per_s"] / pool["trials_per_s"], 3),
+        ray_over_pool_each=[round(r["trials"] / r["wall_s"] / (p["trials"] / p["wall_s"]), 3)
+                            for p, r in zip(calls["pool"], calls["ray"], strict=True)],
+        same_outcomes=all(c["outcomes"] == first for c in calls["pool"] + calls["ray"]),
+        success_rate=round(float(np.mean([mode == "success" for _, mode, _ in first])), 3))
+    for name, s in stats.items():
+        figures[f"{name}_trials_per_s_each"] = [round(x, 3) for x in s["trials_per_s_each"]]
+        for key in ("driver_cpu_ms_per_trial", "idle_s_per_call", "non_trial_s_per_job", "trial_s_mean",
+                    "trial_s_max", "worker_s_per_trial"):
+            figures[f"{name}_{key}"] = round(s[key], 4)
+    figures["steps_per_trial"] = round(ray["steps_per_trial"], 1)
+    figures["ray_extra_idle_s_per_call"] = round(ray["idle_s_per_call"] - pool["idle_s_per_call"], 4)
+    figures["ray_extra_driver_cpu_ms_per_trial"] = round(ray["driver_cpu_ms_per_trial"]
+                                                         - pool["driver_cpu_ms_per_trial"], 4)
+    # one driver process dispatches at most this many trials/s, were its work on one core
+    figures["ray_driver_trials_per_s_max"] = round(1e3 / ray["driver_cpu_ms_per_trial"])
+    return stats
+
+
+def costs_of(figures: dict, stats: dict[str, dict], calls: dict[str, list[dict]], task: dict,
+             protocol: dict, args: argparse.Namespace) -> dict[str, dict]:
+    """Per task: the projection's trials, seconds per trial and per longest trial, load, idle, driver."""
+    ray = stats["ray"]
     max_steps = int(task["session"]["max_steps"])
     per_step, per_step_source = step_seconds(calls["pool"] + calls["ray"], 1 / 179)
-    figures.update(s_per_control_step=round(per_step, 5), s_per_control_step_from=per_step_source)
+    # A job's object load: the pool's seconds outside trials (its per-trial messages cost ~nothing); what Ray
+    # spends beyond that outside trials is per trial call (arguments, results), added to each trial.
+    load_s = min(stats["pool"]["non_trial_s_per_job"], ray["non_trial_s_per_job"])
+    per_job = args.trials / math.ceil(args.trials / math.ceil(args.trials / args.workers))
+    ray_call_s = (ray["non_trial_s_per_job"] - load_s) / per_job
+    figures.update(s_per_control_step=round(per_step, 5), s_per_control_step_from=per_step_source,
+                   ray_call_s_per_trial=round(ray_call_s, 5))
     costs = {}
     for name, task_name, rate, long_factor, _source in DOCUMENTED:
         if task_name == "insertion":  # measured: Ray's own per-trial cost, and a trial at the episode's limit
-            trial_s = ray_s["trial_s_mean"]
-            long_s = trial_s + max(max_steps - ray_s["steps_per_trial"], 0.0) * per_step
-        else:  # documented pool rate with 2 workers: a worker's seconds per trial, loading included
-            trial_s = 2.0 / rate
+            trial_s = ray["trial_s_mean"] + ray_call_s
+            long_s = trial_s + max(max_steps - ray["steps_per_trial"], 0.0) * per_step
+        else:  # documented pool rate with 2 workers: a worker's seconds per trial (loads, idle included)
+            trial_s = 2.0 / rate + ray_call_s
             long_s = trial_s * long_factor
         costs[name] = {"trials": protocol["trials"][task_name], "trial_s": trial_s, "long_s": long_s,
-                       "load_s": ray_s["load_s_per_job"], "idle_s": max(ray_s["idle_s_per_call"], 0.0),
-                       "driver_s": ray_s["driver_cpu_ms_per_trial"] / 1e3}
-    projection = project(costs, protocol, args.cores_per_node, args.confirm_trials, figures["ray_startup_s"])
-    figures["projection"] = {
-        "what": "PROJECTION computed from the figures above, not measured on a cluster",
-        "cores_per_node": args.cores_per_node, "confirm_trials": args.confirm_trials, **protocol,
-        "costs": {k: {kk: round(vv, 4) if isinstance(vv, float) else vv for kk, vv in v.items()} for k, v in costs.items()},
-        "sources": {name: source for name, *_, source in DOCUMENTED},
-        "tasks": projection}
-    figures["loadavg_before"], figures["loadavg_after"] = load_before, _loadavg()
+                       "load_s": load_s, "idle_s": max(ray["idle_s_per_call"], 0.0),
+                       "driver_s": ray["driver_cpu_ms_per_trial"] / 1e3}
+    return costs
 
-    print(f"pool            {figures['pool_trials_per_s']:.2f} trials/s ({args.workers} workers, calls: "
-          f"{', '.join(f'{x:.2f}' for x in figures['pool_trials_per_s_each'])}); start-up {figures['pool_startup_s']:.1f} s")
-    print(f"ray             {figures['ray_trials_per_s']:.2f} trials/s (calls: "
-          f"{', '.join(f'{x:.2f}' for x in figures['ray_trials_per_s_each'])}); start-up {figures['ray_startup_s']:.1f} s "
-          f"(connect {figures['ray_connect_s']:.1f} s + actors {figures['ray_actors_ready_s']:.1f} s)")
-    print(f"ray / pool      {ratio:.3f}; outcomes {'identical' if figures['same_outcomes'] else 'DIFFERENT'}")
-    print(f"overheads       driver CPU per trial: pool {figures['pool_driver_cpu_ms_per_trial']:.2f} ms, ray "
-          f"{figures['ray_driver_cpu_ms_per_trial']:.2f} ms; idle per call: pool {figures['pool_idle_s_per_call']:.3f} s, "
-          f"ray {figures['ray_idle_s_per_call']:.3f} s; load per job: pool {figures['pool_load_s_per_job']:.3f} s, "
-          f"ray {figures['ray_load_s_per_job']:.3f} s; no-op actor call {median:.2f} ms")
-    print(f"PROJECTION (computed, not measured): paper protocol per object-policy pair, population "
-          f"{protocol['population']} x {protocol['iterations']} iterations x the task's trials, + nominal, + "
-          f"{1 + protocol['top_k']} shapes x {args.confirm_trials} confirmation trials, {args.cores_per_node} "
-          "cores per node, one worker per core; low-high: mean trials / one trial per chunk at the episode limit")
+
+def _print(figures: dict, protocol: dict, projection: dict, args: argparse.Namespace) -> None:
+    f = figures
+    print(f"pool            {f['pool_trials_per_s']:.2f} trials/s ({args.workers} workers; calls "
+          f"{', '.join(f'{x:.2f}' for x in f['pool_trials_per_s_each'])}); start-up {f['pool_startup_s']:.1f} s")
+    print(f"ray             {f['ray_trials_per_s']:.2f} trials/s ({f['ray_actors']} actors; calls "
+          f"{', '.join(f'{x:.2f}' for x in f['ray_trials_per_s_each'])}); start-up {f['ray_startup_s']:.1f} s "
+          f"(connect {f['ray_connect_s']:.1f} s + actors {f['ray_actors_ready_s']:.1f} s)")
+    print(f"ray / pool      {f['ray_over_pool']:.3f} (pairs of calls: {', '.join(map(str, f['ray_over_pool_each']))}); "
+          f"outcomes {'identical' if f['same_outcomes'] else 'DIFFERENT'}")
+    print(f"driver CPU      per trial: pool {f['pool_driver_cpu_ms_per_trial']:.2f} ms, ray "
+          f"{f['ray_driver_cpu_ms_per_trial']:.2f} ms (one driver: <= {f['ray_driver_trials_per_s_max']} trials/s)")
+    print(f"idle per call   pool {f['pool_idle_s_per_call']:.3f} s, ray {f['ray_idle_s_per_call']:.3f} s (wall - the "
+          "workers' mean busy seconds)")
+    print(f"outside trials  per job (object load, trial calls): pool {f['pool_non_trial_s_per_job']:.3f} s, ray "
+          f"{f['ray_non_trial_s_per_job']:.3f} s; ray no-op actor call {f['ray_noop_call_ms_median']:.2f} ms")
+    print(f"PROJECTION (computed, not measured): paper protocol per object-policy pair: nominal + population "
+          f"{protocol['population']} x {protocol['iterations']} iterations x the task's trials + {1 + protocol['top_k']} "
+          f"shapes x {args.confirm_trials} confirmation trials, {args.cores_per_node} cores per node, one worker per "
+          "core; low-high: mean trials - one trial per chunk at the episode limit")
     names = list(projection)
     for mode, label in (("now", "as GRT runs today (one candidate per evaluate call)"),
                         ("batched", "if a whole population were one evaluate call (not implemented)")):
@@ -328,6 +357,25 @@ def main(argv: list[str] | None = None) -> dict:
         for i, nodes in enumerate(NODES):
             row = [projection[n]["rows"][i] for n in names]
             print(f"  {nodes:5d} {row[0]['workers']:7d} | " + " | ".join(_span(x[f'{mode}_s']) for x in row))
+
+
+def main(argv: list[str] | None = None) -> dict:
+    """Run the benchmark; prints progress, the figures, the projection and, last, one JSON line."""
+    args = _arguments(argv)
+    figures, calls, task = measure(args)
+    stats = compare(figures, calls, args.workers)
+    protocol = _protocol()
+    costs = costs_of(figures, stats, calls, task, protocol, args)
+    projection = project(costs, protocol, args.cores_per_node, args.confirm_trials, figures["ray_startup_s"])
+    figures["projection"] = {
+        "what": "PROJECTION computed from the figures above, not measured on a cluster",
+        "cores_per_node": args.cores_per_node, "confirm_trials": args.confirm_trials, **protocol,
+        "costs": {k: {kk: round(vv, 4) if isinstance(vv, float) else vv for kk, vv in v.items()}
+                  for k, v in costs.items()},
+        "sources": {name: source for name, *_, source in DOCUMENTED},
+        "tasks": projection}
+    figures["loadavg_after"] = _loadavg()
+    _print(figures, protocol, projection, args)
     print(json.dumps(figures))
     return figures
 
