@@ -33,10 +33,7 @@ def journal(run_dir: Path) -> list[dict]:
 @pytest.mark.slow
 def test_ctrl_c_stops_a_ray_run_and_the_pool_finishes_it_with_the_same_journal(tmp_path):
     reference = tmp_path / "pool"
-    done = grt_run(*RUN, f"hydra.run.dir={reference}")
-    out = done.communicate(timeout=300)[0]
-    assert done.returncode == 0, out
-
+    done = grt_run(*RUN, f"hydra.run.dir={reference}")  # the uninterrupted run, beside the one interrupted
     run_dir = tmp_path / "ray"
     proc = grt_run(*RUN, "evaluator=ray", f"hydra.run.dir={run_dir}")
     lines = run_dir / "journal.jsonl"
@@ -50,6 +47,8 @@ def test_ctrl_c_stops_a_ray_run_and_the_pool_finishes_it_with_the_same_journal(t
     assert proc.returncode == 130, out
     assert f"continue this run with: python -m grt.run resume={run_dir}" in out
     assert "Traceback" not in out
+    out = done.communicate(timeout=300)[0]
+    assert done.returncode == 0, out
     kept = journal(run_dir)
     assert 3 <= len(kept) < len(journal(reference))
     assert kept == journal(reference)[:len(kept)]  # every line written is whole and as the pool's
