@@ -30,3 +30,42 @@ def toy_run(tmp_path_factory):
                        "budget.confirm_trials=4", "+evaluator.bar_mm=4", *TOY, f"paths.output_dir={out}"])
     run(cfg)
     return out
+
+
+# A real grasp red-team run with the smallest budget that runs the whole loop: two small cameras keep CPU
+# rendering cheap; with 2 trials S0 may be 0, so no nominal floor (test_nominal_floor.py covers the floor).
+GRASP_SMOKE = ["budget=smoke", "budget.confirm_trials=2", "task.session.num_cameras=2",
+               "task.session.camera_width=160", "task.session.camera_height=120", "selector.k=4",
+               "task.nominal_floor=null"]
+
+
+def _grt_piped(*args: str, timeout: float = 900):
+    """``python -m ARGS`` from the repository root with stdout and stderr piped (as in a log or CI)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    return subprocess.run([sys.executable, "-m", *args], cwd=Path(__file__).resolve().parents[1],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def grasp_smoke_run(tmp_path_factory):
+    """``(run folder, finished process)`` of one real ``python -m grt.run`` on the grasp task (``GRASP_SMOKE``),
+    made once per session: a simulator start costs more than the whole smoke search, so the tests that read
+    a real run's folder (artifacts, replay) or its piped output (the log) share this one."""
+    run_dir = tmp_path_factory.mktemp("grasp_smoke") / "run"
+    proc = _grt_piped("grt.run", *GRASP_SMOKE, f"hydra.run.dir={run_dir}")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return run_dir, proc
+
+
+@pytest.fixture(scope="session")
+def grasp_evaluation(tmp_path_factory):
+    """``(output folder, finished process)`` of one real ``python -m grt.evaluate`` of the can (two small
+    cameras, 2 trials, 1 worker, progress on), piped; shared by the tests of its log and of its JSON line."""
+    out = tmp_path_factory.mktemp("grasp_evaluation") / "out"
+    proc = _grt_piped("grt.evaluate", "task=grasp_2cam", "object=can", "budget.trials=2", "budget.workers=1",
+                      f"hydra.run.dir={out}")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return out, proc

@@ -31,9 +31,8 @@ def _log_lines(proc: subprocess.CompletedProcess, machine_lines: int = 0) -> lis
 
 
 @pytest.mark.slow
-def test_evaluate_in_a_log(tmp_path):
-    out = tmp_path / "out"
-    proc = _piped("grt.evaluate", "budget.trials=2", "budget.workers=1", f"hydra.run.dir={out}")
+def test_evaluate_in_a_log(grasp_evaluation):
+    out, proc = grasp_evaluation  # python -m grt.evaluate ... budget.trials=2 budget.workers=1, piped (conftest.py)
     _log_lines(proc, machine_lines=1)  # the last line is the JSON object (the command's output for scripts)
     stdout = proc.stdout.splitlines()
     start = next(i for i, line in enumerate(stdout) if line.startswith("starting 1 simulator worker"))
@@ -49,9 +48,8 @@ def test_evaluate_in_a_log(tmp_path):
 
 
 @pytest.mark.slow
-def test_run_in_a_log(tmp_path):
-    out = tmp_path / "run"
-    proc = _piped("grt.run", "budget=smoke", f"hydra.run.dir={out}")
+def test_run_in_a_log(grasp_smoke_run):
+    out, proc = grasp_smoke_run  # python -m grt.run budget=smoke ..., piped (conftest.py)
     lines = _log_lines(proc)
     assert any(line.startswith("starting 1 simulator worker") for line in proc.stdout.splitlines())
     assert [line for line in proc.stderr.splitlines() if line.startswith("red-team: 7/7 (100%)")]

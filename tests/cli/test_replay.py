@@ -61,14 +61,10 @@ def test_the_default_trial_is_the_rank1_shapes_first_failure(toy_run):
 
 @pytest.mark.sim
 @pytest.mark.slow
-def test_a_replayed_trial_matches_the_journal_and_is_filmed(tmp_path):
-    """A real (smoke) grasp run, then its nominal and rank-1 trials replayed in a new process."""
-    run = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "grt.run", "budget=smoke", "budget.trials=2", "selector.k=4",
-                           "task.session.num_cameras=2", "task.session.camera_width=160",
-                           "task.session.camera_height=120", "task.nominal_floor=null", f"hydra.run.dir={run}"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+def test_a_replayed_trial_matches_the_journal_and_is_filmed(grasp_smoke_run, tmp_path):
+    """A real (smoke) grasp run (conftest.py's, shared), then its nominal and rank-1 trials replayed in a new
+    process."""
+    run, _ = grasp_smoke_run
     journal = [json.loads(line) for line in (run / "journal.jsonl").read_text().splitlines()]
     summary = json.loads((run / "summary.json").read_text())
     shape = (summary["crashshapes"] or summary["best_candidates"])[0]  # a smoke run may find no CrashShape

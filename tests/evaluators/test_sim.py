@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
-import sys
 
 import pytest
 from omegaconf import OmegaConf
@@ -56,12 +54,9 @@ def test_builtin_object_two_trials_fast_collision(grasp_configs):
     assert 0.0 <= result.score <= 1.0 and sum(result.outcomes.values()) == 2
 
 
-def test_cli_last_line_is_json(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "grt.evaluate", "object=can", "task=grasp_2cam",
-                           "budget.trials=2", "evaluator.progress=false", f"hydra.run.dir={tmp_path}"],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+def test_cli_last_line_is_json(grasp_evaluation):
+    out, proc = grasp_evaluation  # python -m grt.evaluate object=can task=grasp_2cam budget.trials=2 (conftest.py)
     summary = json.loads(proc.stdout.strip().splitlines()[-1])
     assert summary["trials"] == 2 and sum(summary["outcomes"].values()) == 2
     assert {"success_rate", "ci95", "wall_s", "trials_per_s"} <= summary.keys()
-    assert (tmp_path / "evaluation.json").is_file()
+    assert (out / "evaluation.json").is_file()

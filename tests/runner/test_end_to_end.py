@@ -11,9 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-
-from grt.runner import run
-from tests.runner.conftest import compose_run
+from omegaconf import OmegaConf
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,35 +26,36 @@ def journal_keys(run_dir: Path) -> list[tuple[int, int]]:
     return [(r["iteration"], r["candidate"]) for r in map(json.loads, lines)]
 
 
-def test_smoke_run_writes_every_artifact(tmp_path):
-    cfg = compose_run([*FAST, "budget.confirm_trials=2", f"paths.output_dir={tmp_path}"])
-    summary = run(cfg)
+def test_smoke_run_writes_every_artifact(grasp_smoke_run):
+    run_dir, _ = grasp_smoke_run  # python -m grt.run with FAST and budget.confirm_trials=2 (tests/conftest.py)
+    cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+    summary = json.loads((run_dir / "summary.json").read_text())
     n = 1 + cfg.budget.population * cfg.budget.iterations
-    assert journal_keys(tmp_path) == [(0, 0)] + [(t, i) for t in (1, 2) for i in range(3)]
+    assert journal_keys(run_dir) == [(0, 0)] + [(t, i) for t in (1, 2) for i in range(3)]
     assert summary["evaluations"] == n
     for name in ("summary.json", "curve.png", "shapes.png", "handles.json"):
-        assert (tmp_path / name).stat().st_size > 0, name
+        assert (run_dir / name).stat().st_size > 0, name
     assert 0.0 <= summary["s0"] <= 1.0
     assert summary["final_drop"] >= 0 or summary["s0"] == 0
     found = summary["crashshape_found"]  # a smoke run often finds no drop: its best candidates go to best/
     shapes = summary["crashshapes"] if found else summary["best_candidates"]
     assert len(shapes) == cfg.budget.top_k and all(s["watertight"] for s in shapes)
-    assert (tmp_path / shapes[0]["file"]).exists()
-    assert (tmp_path / ("crashshapes" if found else "best") / "handles.json").exists()
-    assert list((tmp_path / shapes[0]["parts"]).glob("part*.obj")), "convex parts not saved"
+    assert (run_dir / shapes[0]["file"]).exists()
+    assert (run_dir / ("crashshapes" if found else "best") / "handles.json").exists()
+    assert list((run_dir / shapes[0]["parts"]).glob("part*.obj")), "convex parts not saved"
     assert summary["selector"] == "heuristic" and summary["optimizer"] == "topdm"
-    rec = json.loads((tmp_path / "journal.jsonl").read_text().splitlines()[1])
+    rec = json.loads((run_dir / "journal.jsonl").read_text().splitlines()[1])
     assert {"theta", "score", "trials", "outcomes", "smoothness_m", "entropy", "mesh_hash"} <= set(rec)
     assert len(rec["trials"]) == cfg.budget.trials
     if not found:  # nothing failed: nothing to confirm (the toy runs of test_confirm.py cover a drop)
-        assert "confirm" not in summary and not list(tmp_path.glob("confirm-*.jsonl"))
+        assert "confirm" not in summary and not list(run_dir.glob("confirm-*.jsonl"))
         return
     # the CrashShapes confirmed on fresh episodes by the real simulator, journaled apart from the search
     conf = summary["confirm"]
     assert len(conf["seeds"]) == 2 and not set(conf["seeds"]) & {t["seed"] for t in rec["trials"]}
     assert [c["rank"] for c in conf["shapes"]] == [s["rank"] for s in shapes]
     assert all(0.0 <= c["score"] <= 1.0 or c["score"] != c["score"] for c in conf["shapes"])
-    assert len((tmp_path / "confirm-2.jsonl").read_text().splitlines()) == 1 + len(shapes)
+    assert len((run_dir / "confirm-2.jsonl").read_text().splitlines()) == 1 + len(shapes)
 
 
 def _cli(args, **kw):
