@@ -14,7 +14,7 @@ run survives to finish a write. The kill moments are seeded (``GRT_KILL_SEED``, 
 An attempt is ``resume=DIR`` once DIR holds the run's config (``run_config.yaml``); a kill before that
 starts the original command again. A kill that comes after the run finished is no kill: the run is done.
 
-By default 5 kills (about 20 s); ``GRT_KILL_STRESS=20`` runs the issue's 20 kills (about 40 s)::
+By default 5 kills (about 20 s with the reference run); ``GRT_KILL_STRESS=20`` runs the issue's 20 kills (about 45 s)::
 
     GRT_KILL_STRESS=20 .venv/bin/python -m pytest tests/runner/test_kill_resume_stress.py -s
 """
@@ -41,8 +41,10 @@ from tests.runner._toy_run import TOY
 ROOT = Path(__file__).resolve().parents[2]
 KILLS = int(os.environ.get("GRT_KILL_STRESS", "5"))
 SEED = int(os.environ.get("GRT_KILL_SEED", "0"))
-# budget=smoke with more candidates: 1 + 4 x 5 journal lines, so the journal-line kills have lines to cut.
-RUN = ["budget=smoke", "budget.population=4", "budget.iterations=5", *TOY]
+# budget=smoke with more candidates: 1 + 4 x 5 journal lines, so the journal-line kills have lines to cut. The can:
+# no remeshing and a small mesh to check, so an attempt is half as long as on the mug (the kill moments scale
+# with it) and the run's files and phases are the same.
+RUN = ["budget=smoke", "budget.population=4", "budget.iterations=5", "object=can", *TOY]
 CANDIDATES = 1 + 4 * 5
 TIMEOUT_S = 300
 # Fields of summary.json that describe the session, not the run.
@@ -141,6 +143,10 @@ def run_summary(run_dir: Path) -> dict:
     return {k: v for k, v in summary.items() if k not in SESSION_FIELDS}
 
 
+def canonical(data) -> str:
+    return json.dumps(data, sort_keys=True)
+
+
 def crashshape_files(run_dir: Path) -> dict[str, bytes]:
     folder = run_dir / "crashshapes"
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
@@ -184,8 +190,10 @@ def test_a_run_killed_at_random_moments_and_resumed_ends_as_the_uninterrupted_ru
     keys = [(r["iteration"], r["candidate"]) for r in got]
     assert len(set(keys)) == len(keys), f"a candidate is in the journal twice\n{report}"
     assert keys == [(r["iteration"], r["candidate"]) for r in want], report
-    assert got == want, report  # thetas, scores, trials, mesh hashes: everything but the timing
-    assert run_summary(run_dir) == run_summary(ref_dir), report
+    # thetas, scores, trials, mesh hashes: everything but the timing (as JSON, where NaN, the score of an
+    # implausible candidate that was not simulated, equals NaN)
+    assert canonical(got) == canonical(want), report
+    assert canonical(run_summary(run_dir)) == canonical(run_summary(ref_dir)), report
     assert crashshape_files(run_dir) == crashshape_files(ref_dir), report
     visible = lambda d: sorted(p.name for p in d.iterdir() if not p.name.startswith("."))  # noqa: E731
     assert visible(run_dir) == visible(ref_dir), report
