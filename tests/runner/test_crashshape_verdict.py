@@ -16,7 +16,7 @@ from tests.runner._toy_run import TOY
 
 ROOT = Path(__file__).resolve().parents[2]
 SEARCH = ["budget=smoke", "selector.k=3", "optimizer=gaussian", "budget.sigma=0.06", "budget.population=4",
-          "budget.trials=4", *TOY]
+          "budget.trials=4", "object=can", *TOY]
 
 
 def grt(module: str, *args: str) -> subprocess.CompletedProcess:
