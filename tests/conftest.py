@@ -60,12 +60,16 @@ def grasp_smoke_run(tmp_path_factory):
     return run_dir, proc
 
 
+# A real evaluation of the can by the antipodal planner: two small cameras, 2 trials, 1 worker.
+GRASP_EVALUATION = ["task=grasp_2cam", "object=can", "policy=antipodal", "budget.trials=2", "budget.workers=1"]
+
+
 @pytest.fixture(scope="session")
 def grasp_evaluation(tmp_path_factory):
-    """``(output folder, finished process)`` of one real ``python -m grt.evaluate`` of the can (two small
-    cameras, 2 trials, 1 worker, progress on), piped; shared by the tests of its log and of its JSON line."""
+    """``(output folder, finished process)`` of one real ``python -m grt.evaluate GRASP_EVALUATION`` (progress
+    on), piped; shared by the tests of its log, of its JSON line and of the same policy served
+    (test_serve.py compares the served planner's trials with these)."""
     out = tmp_path_factory.mktemp("grasp_evaluation") / "out"
-    proc = _grt_piped("grt.evaluate", "task=grasp_2cam", "object=can", "budget.trials=2", "budget.workers=1",
-                      f"hydra.run.dir={out}")
+    proc = _grt_piped("grt.evaluate", *GRASP_EVALUATION, f"hydra.run.dir={out}")
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return out, proc

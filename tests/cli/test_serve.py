@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from grt.policy_server import PolicyServer
+from tests.conftest import GRASP_EVALUATION
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
@@ -106,10 +107,15 @@ def test_the_shipped_insertion_policy_served_scores_as_in_process(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_antipodal_planner_served_scores_as_in_process(tmp_path):
-    with Served("task=grasp", "policy=antipodal", "serve.port=0") as server:
-        remote, local = evaluate_served_and_in_process(tmp_path, server.url, "antipodal", "task=grasp",
-                                                       "object=mug", "budget.trials=2")
+def test_the_antipodal_planner_served_scores_as_in_process(grasp_evaluation, tmp_path):
+    """The in-process side is conftest.py's evaluation (python -m grt.evaluate GRASP_EVALUATION, shared);
+    served, the same command with policy=remote."""
+    with Served("task=grasp_2cam", "policy=antipodal", "serve.port=0") as server:
+        args = [a for a in GRASP_EVALUATION if not a.startswith("policy=")]
+        proc = grt("evaluate", *args, "policy=remote", f"policy.url={server.url}", "evaluator.progress=false",
+                   f"hydra.run.dir={tmp_path / 'remote'}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    remote, local = trials(tmp_path / "remote"), trials(grasp_evaluation[0])
     assert remote == local
     assert any(t[3].get("num_grasps") for t in remote)  # grasps crossed the wire
 
