@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from grt.runner import run
-from tests.runner.conftest import compose_run
+from tests.runner.conftest import compose_run, refused_by_evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -46,13 +46,23 @@ def _cli(module: str, *args: str, timeout: float = 300):
                           text=True, timeout=timeout)
 
 
-@pytest.mark.parametrize("args, message", [
+BAD_INPUT = [
     (["object=bottle"], "'bottle' is no built-in drawer handle"),
     (["object=bottle", "task.session.handle_object=drawer_handle"], "sticks out 225 mm"),
     (["object=drawer_pull", "task.session.grasp_point=[0,0.03]"], "three numbers"),
     (["policy=insertion_state"], "trained for task 'insertion'"),
-])
-def test_bad_drawer_input_is_one_line_and_exit_2(args, message, tmp_path):
+]
+
+
+@pytest.mark.parametrize("args, message", BAD_INPUT)
+def test_bad_drawer_input_is_one_line_and_exit_2(args, message, tmp_path, capsys):
+    code, err = refused_by_evaluate(["task=drawer", "policy=drawer_expert", *args, "budget.trials=1"], tmp_path,
+                                    capsys)  # grt.evaluate's app, in process
+    assert code == 2 and message in err and err.count("\n") == 1, err
+
+
+def test_bad_drawer_input_through_the_command(tmp_path):
+    args, message = BAD_INPUT[0]
     out = _cli("grt.evaluate", "task=drawer", "policy=drawer_expert", *args, "budget.trials=1",
                f"hydra.run.dir={tmp_path}")
     assert out.returncode == 2, out.stdout + out.stderr

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from grt.runner import run
-from tests.runner.conftest import compose_run
+from tests.runner.conftest import compose_run, refused_by_evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -36,7 +36,7 @@ def _cli(module: str, *args: str, timeout: float = 300):
                           text=True, timeout=timeout)
 
 
-@pytest.mark.parametrize("args, message", [
+BAD_INPUT = [
     (["task=insertion", "policy=insertion_state", "policy.checkpoint=/nonexistent/x.pt"], "does not exist"),
     (["task=grasp", "policy=insertion_state"], "is a closed-loop policy"),  # refused by kind, before its checkpoint
     (["task=drawer", "policy=insertion_state"], "trained for task 'insertion'"),
@@ -46,8 +46,17 @@ def _cli(module: str, *args: str, timeout: float = 300):
     (["task=insertion", "policy=insertion_state", "object=mug", "task.session.socket_object=usb_plug",
       "task.session.head_length=0.012", "task.session.grip_height=0.03"], "wide across the fingers"),
     (["task=insertion", "policy=insertion_state", "object=/tmp/nonexistent_plug.obj"], "mesh file not found"),
-])
-def test_bad_insertion_input_is_one_line_and_exit_2(args, message, tmp_path):
+]
+
+
+@pytest.mark.parametrize("args, message", BAD_INPUT)
+def test_bad_insertion_input_is_one_line_and_exit_2(args, message, tmp_path, capsys):
+    code, err = refused_by_evaluate([*args, "budget.trials=1"], tmp_path, capsys)  # grt.evaluate's app, in process
+    assert code == 2 and message in err and err.count("\n") == 1, err
+
+
+def test_bad_insertion_input_through_the_command(tmp_path):
+    args, message = BAD_INPUT[0]
     out = _cli("grt.evaluate", *args, "budget.trials=1", f"hydra.run.dir={tmp_path}")
     assert out.returncode == 2, out.stdout + out.stderr
     assert message in out.stderr and "Traceback" not in out.stderr, out.stderr
