@@ -90,8 +90,13 @@ def test_kill_9_then_resume_loses_nothing_and_repeats_nothing(tmp_path):
     assert summary["evaluated_this_session"] == 7 - len(before)
 
 
+# A sweep's jobs: what is under test is that each starts its simulator and finishes (or fails alone), so one
+# generation of 1-trial candidates is search enough (the simulator's start costs the most).
+SWEEP_JOB = ["budget.iterations=1", "budget.trials=1"]
+
+
 def test_multirun_goes_on_after_a_failing_job(tmp_path):
-    proc = _cli(["-m", *FAST, "object=no_such_object,can", f"hydra.sweep.dir={tmp_path}"])
+    proc = _cli(["-m", *FAST, *SWEEP_JOB, "object=no_such_object,can", f"hydra.sweep.dir={tmp_path}"])
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out
     errors = list(tmp_path.rglob("error.txt"))
@@ -106,7 +111,7 @@ def test_multirun_goes_on_after_a_failing_job(tmp_path):
 def test_multirun_with_the_joblib_launcher(tmp_path):
     # loky installs its own start method; the evaluator's spawned workers must still start
     fast = [o for o in FAST if not o.startswith("selector.")]  # `all` has no k
-    proc = _cli(["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", *fast, "budget.workers=1",
+    proc = _cli(["-m", "hydra/launcher=joblib", "hydra.launcher.n_jobs=2", *fast, *SWEEP_JOB, "budget.workers=1",
                  "selector=heuristic,all", f"hydra.sweep.dir={tmp_path}"])
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 0, out
