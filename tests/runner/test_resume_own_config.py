@@ -20,8 +20,9 @@ from grt.runfolder import RUN_CONFIG, ResumeError, resume_or, resume_overrides
 from tests.runner._toy_run import TOY
 
 ROOT = Path(__file__).resolve().parents[2]
-# Not the defaults (budget=quick, selector.k=8, optimizer=topdm): a resume must keep each of them.
-FIRST = ["budget=smoke", "selector.k=3", "optimizer=gaussian", *TOY]
+# Not the defaults (budget=quick, selector.k=8, optimizer=topdm, object=mug): a resume must keep each of them.
+# (The can also makes each toy run half as long: no remeshing, a small mesh to check.)
+FIRST = ["budget=smoke", "selector.k=3", "optimizer=gaussian", "object=can", *TOY]
 
 
 def grt_run(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
@@ -88,7 +89,7 @@ def test_a_resume_that_would_change_the_run_is_refused_before_any_file(run_dir):
     res = grt_run(f"resume={run_dir}", "selector=all", "object=bottle", "budget.trials=2")
     assert res.returncode == 2, res.stdout + res.stderr
     assert "Traceback" not in res.stderr and res.stderr.count("\n") == 1
-    assert "selector (the run's: heuristic, given: all), object (the run's: mug, given: bottle)" in res.stderr
+    assert "selector (the run's: heuristic, given: all), object (the run's: can, given: bottle)" in res.stderr
     assert "budget.trials" not in res.stderr  # the run's own value: no change
     assert "start a new run" in res.stderr
     assert tree(run_dir) == before

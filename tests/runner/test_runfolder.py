@@ -29,11 +29,12 @@ from grt.runfolder import (
     resume_overrides,
     save_run_config,
 )
+from tests.runner._toy_run import TOY
 from tests.runner.conftest import compose_run
-from tests.runner.test_resume_own_config import FIRST
 
 ROOT = Path(__file__).resolve().parents[2]
 RELEASE = ROOT / "tests" / "data" / "run_format1_toy"
+RELEASE_COMMAND = ["budget=smoke", "selector.k=3", "optimizer=gaussian", *TOY]  # its overrides (module doc)
 
 
 @pytest.fixture
@@ -66,7 +67,7 @@ def test_the_release_folder_is_format_1_and_migrates_without_changing_its_values
     expected["budget"]["tau_rel"], expected["deformer"]["max_volume_change"] = None, None
     assert OmegaConf.to_container(cfg) == expected
     saved = SavedRun.load(release_run)
-    assert saved.format == 1 and saved.overrides == FIRST and saved.choices["optimizer"] == "gaussian"
+    assert saved.format == 1 and saved.overrides == RELEASE_COMMAND and saved.choices["optimizer"] == "gaussian"
 
 
 def test_an_old_style_config_naming_grt_eval_is_migrated(release_run):
