@@ -240,6 +240,21 @@ def _render(session, render_dir: str | None, candidate: int, seed: int) -> None:
 
 
 # ------------------------------------------------------------------------------------ parent side
+def blame_first_seed(job: Job, crashes: dict, max_retries: int, on_trial, pending: deque, what: str, then: str,
+                     error: str) -> None:
+    """A worker died running ``job``: count the death against its first unfinished seed (a ``sim_error``
+    once it passed ``max_retries``) and put the job's remaining seeds back at the front of ``pending``.
+    Shared by the process pool and :class:`grt.evaluators.ray_pool.RayPool`."""
+    key = (job.candidate, job.seeds[0])
+    crashes[key] = crashes.get(key, 0) + 1
+    log.warning("%s on candidate %d seed %d; %s", what, *key, then)
+    if crashes[key] > max_retries:
+        seed = job.seeds.pop(0)
+        on_trial(job, sim_error(seed, f"{error}, {crashes[key]} times"), 0.0)
+    if job.seeds:
+        pending.appendleft(job)
+
+
 # Memory of one worker once its session is built (RSS, MB; the largest of the tasks measured with
 # scripts/worker_memory.py: 614-744 MB; see docs/benchmarks.md "Worker memory"), rounded up.
 WORKER_MB = 800
@@ -467,14 +482,8 @@ class WorkerPool:
                 self.close()
                 raise RuntimeError(f"evaluator workers keep dying while starting: last one {why}")
         elif job is not None and job.seeds:
-            key = (job.candidate, job.seeds[0])
-            crashes[key] = crashes.get(key, 0) + 1
-            log.warning("worker %s on candidate %d seed %d; restarting it", why, *key)
-            if crashes[key] > self.max_retries:
-                seed = job.seeds.pop(0)
-                on_trial(job, sim_error(seed, f"worker process {why}, {crashes[key]} times"), 0.0)
-            if job.seeds:
-                pending.appendleft(job)
+            blame_first_seed(job, crashes, self.max_retries, on_trial, pending, f"worker {why}", "restarting it",
+                             f"worker process {why}")
         self.workers[self.workers.index(w)] = self._spawn()
 
     def close(self) -> None:

@@ -39,7 +39,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from grt.errors import UserError
-from grt.evaluators.pool import THREAD_VARIABLES, Job, sim_error, worker_limits
+from grt.evaluators.pool import THREAD_VARIABLES, Job, blame_first_seed, worker_limits
 from grt.evaluators.sim import SimEvaluator
 from grt.policies.base import PolicyServerError
 from grt.tasks.base import TrialOutcome
@@ -438,14 +438,8 @@ class RayPool:
                         "at a time)", why, job.candidate, *[w for _, w in a.inflight if w != "load"][:2])
             pending.appendleft(job)
         elif job is not None and job.seeds:
-            key = (job.candidate, job.seeds[0])
-            crashes[key] = crashes.get(key, 0) + 1
-            log.warning("Ray actor %s on candidate %d seed %d; starting another", why, *key)
-            if crashes[key] > self.max_retries:
-                seed = job.seeds.pop(0)
-                on_trial(job, sim_error(seed, f"Ray actor {why}, {crashes[key]} times"), 0.0)
-            if job.seeds:
-                pending.appendleft(job)
+            blame_first_seed(job, crashes, self.max_retries, on_trial, pending, f"Ray actor {why}",
+                             "starting another", f"Ray actor {why}")
         self.actors[self.actors.index(a)] = self._spawn()
 
     def close(self) -> None:
