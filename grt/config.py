@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+import omegaconf
 from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -182,15 +183,30 @@ def object_name(spec: str) -> str:
     return Path(text).stem if ("/" in text or "." in text) else text
 
 
+_OMEGACONF_24 = tuple(int(p) for p in omegaconf.__version__.split(".")[:2]) >= (2, 4)
+
+
+def add_resolver(name: str, resolver: Callable[..., Any]) -> None:
+    """Register an OmegaConf resolver once (idempotent), under the name each OmegaConf version wants.
+
+    OmegaConf 2.4 renamed ``register_new_resolver`` to ``register_resolver`` and warns on the old
+    name; the warning would land on the stderr of every command, one-line errors included.
+    """
+    if OmegaConf.has_resolver(name):
+        return
+    if _OMEGACONF_24:  # before 2.4, register_resolver is the legacy strings-only API
+        OmegaConf.register_resolver(name, resolver, annotation_validation="off")
+    else:
+        OmegaConf.register_new_resolver(name, resolver)
+
+
 def register() -> None:
     """Register schemas and resolvers (idempotent); ``resume_or`` is :mod:`grt.runfolder`'s."""
     cs = ConfigStore.instance()
     cs.store(group="budget", name="schema", node=BudgetSchema)
-    if not OmegaConf.has_resolver("object_name"):
-        OmegaConf.register_new_resolver("object_name", object_name)
-    if not OmegaConf.has_resolver("grt_dir"):
-        # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
-        OmegaConf.register_new_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
+    add_resolver("object_name", object_name)
+    # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
+    add_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
 
 
 register()

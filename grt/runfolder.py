@@ -41,7 +41,7 @@ from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from grt.config import plain
+from grt.config import add_resolver, plain
 from grt.errors import OutputError, UserError
 from grt.fileio import write_text_atomic
 from grt.geometry.deform import DEFAULT_RADIUS
@@ -127,8 +127,7 @@ def resume_or(resume: str | None, default: str) -> str:
 
 def register() -> None:
     """Register the ``resume_or`` resolver of ``hydra.run.dir`` (idempotent)."""
-    if not OmegaConf.has_resolver("resume_or"):
-        OmegaConf.register_new_resolver("resume_or", resume_or)
+    add_resolver("resume_or", resume_or)
 
 
 register()

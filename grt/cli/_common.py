@@ -23,12 +23,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hydra.errors import ConfigCompositionException, HydraException, OverrideParseException
-from omegaconf import OmegaConf
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
 import grt.runfolder  # noqa: F401 - registers the resume_or resolver of hydra.run.dir before composition
 from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resolvers too
-from grt.config import BudgetSchema, budget_hint, unknown_budget_key
+from grt.config import BudgetSchema, add_resolver, budget_hint, unknown_budget_key
 from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
 
@@ -58,8 +57,7 @@ def config_groups() -> str:
     return "\n".join(lines)
 
 
-if not OmegaConf.has_resolver("grt_config_groups"):
-    OmegaConf.register_new_resolver("grt_config_groups", config_groups)
+add_resolver("grt_config_groups", config_groups)
 
 
 def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:

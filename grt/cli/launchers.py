@@ -17,8 +17,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from omegaconf import OmegaConf
-
+from grt.config import add_resolver
 from grt.errors import UserError
 
 #: a job's memory: the run's own process, and one simulator worker each (grt.evaluators.pool.WORKER_MB,
@@ -97,11 +96,9 @@ def job_mem_gb(workers) -> int:
 
 def register() -> None:
     """Register ``grt_job_mem_gb`` and ``grt_python_prefix`` (idempotent)."""
-    if not OmegaConf.has_resolver("grt_job_mem_gb"):
-        OmegaConf.register_new_resolver("grt_job_mem_gb", job_mem_gb)
-    if not OmegaConf.has_resolver("grt_python_prefix"):
-        # the environment (venv) of the Python running this command: what the jobs activate
-        OmegaConf.register_new_resolver("grt_python_prefix", lambda: sys.prefix)
+    add_resolver("grt_job_mem_gb", job_mem_gb)
+    # the environment (venv) of the Python running this command: what the jobs activate
+    add_resolver("grt_python_prefix", lambda: sys.prefix)
 
 
 register()
