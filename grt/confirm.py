@@ -113,35 +113,55 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
     seeds = confirm_seeds(seed, trials, search_seeds)
     journal = Journal(Path(run_dir) / f"confirm-{trials}.jsonl")
 
-    def scores(t: int, i: int, mesh: trimesh.Trimesh) -> dict:
-        h = mesh_hash(mesh.vertices, mesh.faces)
+    # the nominal object first, then the CrashShapes by rank; those not in the journal are scored in one
+    # evaluator call and journaled in this order as each finishes
+    todo = [(0, 0, nominal)] + [(rec["iteration"], rec["candidate"], mesh)
+                                for rec, mesh in zip(best, meshes, strict=True)]
+    got: list[dict | None] = [None] * len(todo)
+    missing = []
+    for k, (t, i, mesh) in enumerate(todo):
         rec = journal.get(t, i)
         if rec is None:
-            result = evaluator.evaluate([mesh], seeds)[0]
-            rec = {"iteration": t, "candidate": i, "score": float(result.score), "mesh_hash": h,
-                   "ci95": list(result.ci95(ci)), "outcomes": result.outcomes,
-                   "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
-                               "mode": o.mode} for o in result.trials]}
-            journal.append(rec)
-        elif rec["mesh_hash"] != h or [tr["seed"] for tr in rec["trials"]] != seeds:
+            missing.append(k)
+        elif rec["mesh_hash"] != mesh_hash(mesh.vertices, mesh.faces) or [tr["seed"] for tr in rec["trials"]] != seeds:
             raise JournalError(f"{journal.path}: the confirmation of iteration {t} candidate {i} was made for "
                                "another shape or other episodes; delete the file to confirm again")
-        if on_evaluated:
-            on_evaluated()
-        return rec
+        else:
+            got[k] = rec
+            if on_evaluated:
+                on_evaluated()
+    done: dict[int, dict] = {}
+    written = 0
 
-    nom = scores(0, 0, nominal)
+    def finish(j: int, result) -> None:
+        nonlocal written
+        t, i, mesh = todo[missing[j]]
+        done[j] = {"iteration": t, "candidate": i, "score": float(result.score),
+                   "mesh_hash": mesh_hash(mesh.vertices, mesh.faces), "ci95": list(result.ci95(ci)),
+                   "outcomes": result.outcomes,
+                   "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
+                               "mode": o.mode} for o in result.trials]}
+        while written in done:
+            rec = got[missing[written]] = done.pop(written)
+            journal.append(rec)
+            written += 1
+            if on_evaluated:
+                on_evaluated()
+
+    if missing:
+        evaluator.evaluate_each([todo[k][2] for k in missing], seeds, finish)
+
+    nom = got[0]
     nominal_trials = np.array([tr["score"] for tr in nom["trials"]])
     s0 = nom["score"]
     shapes = []
-    for rank, (rec, mesh) in enumerate(zip(best, meshes, strict=True), start=1):
-        got = scores(rec["iteration"], rec["candidate"], mesh)
-        shape_trials = np.array([tr["score"] for tr in got["trials"]])
+    for rank, (rec, shape) in enumerate(zip(best, got[1:], strict=True), start=1):
+        shape_trials = np.array([tr["score"] for tr in shape["trials"]])
         shapes.append({"rank": rank, "iteration": rec["iteration"], "candidate": rec["candidate"],
-                       "search_score": rec["score"], "score": got["score"], "ci95": got["ci95"],
-                       "drop": _drop(s0, got["score"]),
+                       "search_score": rec["score"], "score": shape["score"], "ci95": shape["ci95"],
+                       "drop": _drop(s0, shape["score"]),
                        "p_value": paired_drop_p(shape_trials, nominal_trials, seed=seed),
-                       "outcomes": got["outcomes"]})
+                       "outcomes": shape["outcomes"]})
     for shape, adjusted in zip(shapes, holm([s["p_value"] for s in shapes]), strict=True):
         shape["p_holm"] = adjusted
         shape["confirmed"] = bool(adjusted < ALPHA and shape["score"] < s0)

@@ -100,7 +100,7 @@ class RedTeamLoop:
         for t in range(1, self.iterations + 1):
             thetas = self.optimizer.ask()  # mutate: floor(gamma M) handles per candidate (TOPDM)
             thetas = project_to_budget(thetas, self.tau, self.deformer.meters_per_unit)
-            scores = [self._candidate_score(t, i, thetas[i]) for i in range(len(thetas))]
+            scores = self._population_scores(t, thetas)
             # A candidate the simulator could not score (all trials sim_error, NaN) or an implausible one
             # (self-intersecting, not simulated, NaN) is no CrashShape: the search sees it as the nominal
             # object, so it is never an elite by accident.
@@ -118,47 +118,87 @@ class RedTeamLoop:
         mesh = self.deformer.mesh
         rec = self.journal.get(0, 0)
         if rec is None:
-            rec = self._evaluate(0, 0, np.zeros((self.deformer.handles.size, 3)), mesh)
+            rec = self._evaluate(0, [(0, np.zeros((self.deformer.handles.size, 3)), mesh)])[0]
         elif rec["mesh_hash"] != mesh_hash(mesh.vertices, mesh.faces):
             self._mismatch(0, 0, "the nominal object differs (object= changed)")
         return float(rec["score"])
 
-    def _candidate_score(self, t: int, i: int, theta: np.ndarray) -> float:
-        rec = self.journal.get(t, i)
-        if rec is not None:
+    def _population_scores(self, t: int, thetas: np.ndarray) -> list[float]:
+        """Scores of iteration ``t``'s candidates: replayed from the journal, the others evaluated together."""
+        scores, todo = [float("nan")] * len(thetas), []
+        for i, theta in enumerate(thetas):
+            rec = self.journal.get(t, i)
+            if rec is None:
+                todo.append((i, theta, self.deformer.meshes(theta[None])[0]))
+                continue
             if not np.allclose(np.asarray(rec["theta"]), theta, rtol=1e-9, atol=1e-12):
                 self._mismatch(t, i, "its parameters differ (optimizer, seed, handles or budget changed)")
-            return float(rec["score"])
-        mesh = self.deformer.meshes(theta[None])[0]
-        return float(self._evaluate(t, i, theta, mesh)["score"])
+            scores[i] = float(rec["score"])
+        for rec in self._evaluate(t, todo) if todo else []:
+            scores[rec["candidate"]] = float(rec["score"])
+        return scores
 
     def _mismatch(self, t: int, i: int, why: str) -> None:
         raise JournalError(f"{self.journal.path}: iteration {t} candidate {i} of the journal was not made by this "
                            f"run's config: {why}. `python -m grt.run resume=DIR` alone resumes with the run's own config "
                            "(run_config.yaml); otherwise start a new run.")
 
-    def _evaluate(self, t: int, i: int, theta: np.ndarray, mesh: trimesh.Trimesh) -> dict:
-        start = time.perf_counter()
-        validity = self.validity(self.deformer.mesh, mesh) if self.validity else {}
-        if validity.get("valid", True) or t == 0:  # the nominal object is always scored
-            result = self.evaluator.evaluate([mesh], self.seeds)[0]
-            self.evaluations += 1
+    def _evaluate(self, t: int, todo: list[tuple[int, np.ndarray, trimesh.Trimesh]]) -> list[dict]:
+        """Check, simulate and journal candidates ``(i, theta, mesh)`` of iteration ``t``; their records in order.
+
+        The plausible ones are simulated in one evaluator call (a whole population keeps up to population
+        x trials workers busy); each is journaled as soon as it and every candidate before it are done, so
+        the journal's order never depends on which worker finished first, and a killed run loses only the
+        candidates still running. A candidate's ``wall_s`` is its plausibility check plus its trials'
+        worker seconds.
+        """
+        checks = []
+        for _, _, mesh in todo:
+            start = time.perf_counter()
+            validity = self.validity(self.deformer.mesh, mesh) if self.validity else {}
+            checks.append((validity, time.perf_counter() - start))
+        done: dict[int, dict] = {}
+        written: list[dict] = []
+
+        def finish(k: int, result) -> None:
+            done[k] = self._record(t, *todo[k], *checks[k], result)
+            while len(written) < len(todo) and len(written) in done:
+                rec = done.pop(len(written))
+                self.journal.append(rec)
+                written.append(rec)
+                if self.on_candidate:
+                    self.on_candidate(rec)
+
+        # the nominal object is always scored; an implausible candidate is not simulated (NaN)
+        sim = [k for k, (validity, _) in enumerate(checks) if validity.get("valid", True) or t == 0]
+        for k in range(len(todo)):
+            if k not in sim:
+                finish(k, None)
+        if sim:
+            self.evaluator.evaluate_each([todo[k][2] for k in sim], self.seeds,
+                                         lambda j, result: finish(sim[j], result))
+            self.evaluations += len(sim)
+        if len(written) != len(todo):
+            raise RuntimeError(f"the evaluator returned {len(written)} of {len(todo)} candidates' results")
+        return written
+
+    def _record(self, t: int, i: int, theta: np.ndarray, mesh: trimesh.Trimesh, validity: dict, check_s: float,
+                result) -> dict:
+        """A candidate's journal record (``result`` None: not simulated)."""
+        if result is not None:
             trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode,
                        **({"error": str(o.info["error"])[:500]} if o.info.get("error") else {})}
                       for o in result.trials]
             score, ci95, outcomes = float(result.score), list(result.ci95(self.ci)), result.outcomes
+            wall = check_s + float(result.wall_s)
         else:
-            score, ci95, outcomes, trials = float("nan"), [float("nan")] * 2, {}, []
-        rec = {
+            score, ci95, outcomes, trials, wall = float("nan"), [float("nan")] * 2, {}, [], check_s
+        return {
             "iteration": t, "candidate": i, "score": score, "ci95": ci95, "outcomes": outcomes,
             **validity,
             "theta": np.asarray(theta).tolist(),
             "smoothness_m": float(smoothness_score(theta, self.deformer.meters_per_unit)),
             "entropy": float(self.complexity(mesh)) if self.complexity else None,
             "mesh_hash": mesh_hash(mesh.vertices, mesh.faces),
-            "trials": trials, "wall_s": round(time.perf_counter() - start, 3),
+            "trials": trials, "wall_s": round(wall, 3),
         }
-        self.journal.append(rec)
-        if self.on_candidate:
-            self.on_candidate(rec)
-        return rec

@@ -6,8 +6,10 @@ the real simulator):
 * trials per second of the local worker pool (``evaluator=sim``) and of Ray actors (``evaluator=ray``,
   a Ray started here, or the cluster at ``--address``), each with ``W`` workers started and warmed up
   before timing, on the same seeds and the same candidate; each measurement is one ``evaluate`` call
-  of ``N`` trials (as the search makes them: one candidate per call), alternated pool/Ray ``R`` times
+  of ``N`` trials of one candidate, alternated pool/Ray ``R`` times
   (pool first, then Ray first, ...) so the machine's load hits both; the ratio ray/pool;
+* a population (``--population`` candidates x ``--population-trials`` trials) in one ``evaluate`` call,
+  as the red-team loop scores it, against one call per candidate, per backend;
 * start-up: the pool's (``W`` processes build their simulators) vs Ray's (connect, or start a local
   Ray, then ``W`` actors build theirs);
 * overheads, each for both backends: the driver's CPU seconds per trial (``time.process_time`` of this
@@ -105,6 +107,41 @@ def step_seconds(calls: list[dict], fallback: float) -> tuple[float, str]:
     return fallback, "docs/benchmarks.md (179 control steps/s in one process)"
 
 
+def measure_population(pool, ray_ev, mesh, args: argparse.Namespace) -> dict:
+    """A population of ``--population`` candidates x ``--population-trials`` trials, scored as the red-team
+    loop scores it (one ``evaluate`` call of every candidate) and as it did before 2026-11-25 (one call
+    per candidate), alternated per backend, ``--repeats`` times; trials/s of each and their ratio.
+
+    The candidates are copies of one mesh (their outcomes must then be equal, call by call): what is
+    timed is the dispatch, the wait for each call's slowest chunk, and the loads.
+    """
+    from grt.redteam import episode_seeds
+
+    seeds = episode_seeds(11, args.population_trials)
+    meshes = [mesh.copy() for _ in range(args.population)]
+    trials = args.population * args.population_trials
+    out: dict = {"candidates": args.population, "trials_per_candidate": args.population_trials}
+    for name, ev in (("pool", pool), ("ray", ray_ev)):
+        wall = {"one_call": 0.0, "call_per_candidate": 0.0}
+        outcomes = []
+        for r in range(args.repeats):
+            for mode in (("one_call", "call_per_candidate") if r % 2 == 0 else ("call_per_candidate", "one_call")):
+                start = time.perf_counter()
+                results = (ev.evaluate(meshes, seeds) if mode == "one_call"
+                           else [ev.evaluate([m], seeds)[0] for m in meshes])
+                wall[mode] += time.perf_counter() - start
+                outcomes.append([[(t.seed, t.mode, t.score) for t in res.trials] for res in results])
+        rates = {mode: round(args.repeats * trials / w, 3) for mode, w in wall.items()}
+        out[name] = {"trials_per_s_one_call": rates["one_call"],
+                     "trials_per_s_call_per_candidate": rates["call_per_candidate"],
+                     "one_call_over_call_per_candidate": round(rates["one_call"] / rates["call_per_candidate"], 3),
+                     "same_outcomes": all(o == outcomes[0] for o in outcomes)
+                     and all(c == outcomes[0][0] for c in outcomes[0])}
+        _say(f"population ({name}): {args.population} candidates x {args.population_trials} trials: one call "
+             f"{rates['one_call']:.2f} trials/s, a call per candidate {rates['call_per_candidate']:.2f} trials/s")
+    return out
+
+
 def noop_round_trip_ms(ev, calls: int) -> tuple[float, float]:
     """Median and 95th percentile (ms) of a Ray actor call that does nothing much (``SimActor.pid``),
     made one after another on a ready actor of ``ev`` (a :class:`~grt.evaluators.ray_pool.RayEvaluator`)."""
@@ -155,9 +192,10 @@ def project(costs: dict[str, dict], protocol: dict, cores: int, confirm_trials: 
     per core, each as fast as a worker measured here; the protocol is the nominal evaluation, then
     ``iterations`` iterations of ``population`` candidates x the task's trials, then the nominal object
     and ``top_k`` CrashShapes confirmed on ``confirm_trials`` fresh episodes, plus one start-up. The
-    iterations are sequential (each population needs the previous one's scores). ``now``: as GRT runs
-    the search today, one candidate per evaluate call, so at most ``trials`` workers are busy at once;
-    ``batched``: a whole population per call (at most population x trials busy workers), not implemented.
+    iterations are sequential (each population needs the previous one's scores). ``population``: as GRT
+    runs the search since 2026-11-25, a whole population per evaluate call (at most population x trials
+    busy workers), the confirmation's shapes in one call too; ``per_candidate``: as it ran before, one
+    candidate per call (at most ``trials`` busy workers).
     Not modelled: the network between nodes (Ray's calls are pipelined, two per actor), a driver whose
     poll grows with the calls in flight (its CPU per trial is measured with ``W`` actors only), the
     driver's deformation and optimizer steps (milliseconds per candidate), ``collision=coacd`` (seconds per
@@ -173,11 +211,14 @@ def project(costs: dict[str, dict], protocol: dict, cores: int, confirm_trials: 
             one = call_seconds(trials, 1, workers, cost)
             pop_call = call_seconds(trials, pop, workers, cost)
             confirm = call_seconds(confirm_trials, 1, workers, cost) if confirm_trials else (0.0, 0.0)
-            now = [startup_s + (1 + pop * iters) * one[k] + (1 + top_k) * confirm[k] for k in (0, 1)]
-            batched = [startup_s + one[k] + iters * pop_call[k] + (1 + top_k) * confirm[k] for k in (0, 1)]
-            rows.append({"nodes": nodes, "workers": workers, "busy_now": min(workers, trials),
-                         "busy_batched": min(workers, pop * trials),
-                         "now_s": [round(x, 1) for x in now], "batched_s": [round(x, 1) for x in batched]})
+            confirm_all = (call_seconds(confirm_trials, 1 + top_k, workers, cost) if confirm_trials
+                           else (0.0, 0.0))
+            single = [startup_s + (1 + pop * iters) * one[k] + (1 + top_k) * confirm[k] for k in (0, 1)]
+            population = [startup_s + one[k] + iters * pop_call[k] + confirm_all[k] for k in (0, 1)]
+            rows.append({"nodes": nodes, "workers": workers, "busy_population": min(workers, pop * trials),
+                         "busy_per_candidate": min(workers, trials),
+                         "population_s": [round(x, 1) for x in population],
+                         "per_candidate_s": [round(x, 1) for x in single]})
         out[name] = {"trials": trials, "rows": rows}
     return out
 
@@ -204,6 +245,10 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
                     help="timed calls per backend, alternated: pool first, then Ray first, ... (default 4)")
     ap.add_argument("--address", default="local",
                     help="Ray: local (started here, default), auto, HOST:PORT or ray://HOST:PORT (a cluster)")
+    ap.add_argument("--population", type=int, default=8,
+                    help="candidates of the population measurement: one evaluate call vs one call each (default 8)")
+    ap.add_argument("--population-trials", type=int, default=8,
+                    help="trials per candidate of the population measurement (default 8, as budget=quick)")
     ap.add_argument("--calls", type=int, default=200, help="no-op actor calls timed (default 200)")
     ap.add_argument("--policy", default="insertion_state", help="insertion policy config (default insertion_state)")
     ap.add_argument("--cores-per-node", type=int, default=16, help="cores per node of the projection (default 16)")
@@ -211,7 +256,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
                     help="fresh episodes of the projected confirmation (default 32, as experiment=table2_cgn; "
                          "conf/budget/paper.yaml sets none)")
     args = ap.parse_args(argv)
-    for name in ("workers", "trials", "repeats", "calls", "cores_per_node"):
+    for name in ("workers", "trials", "repeats", "calls", "cores_per_node", "population", "population_trials"):
         if getattr(args, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if args.confirm_trials < 0:
@@ -266,6 +311,7 @@ def measure(args: argparse.Namespace) -> tuple[dict, dict[str, list[dict]], dict
                 calls[name].append(measure_call(pool if name == "pool" else ray_ev, mesh, seeds))
             _say(f"call {r + 1}/{args.repeats}: " + ", ".join(
                 f"{n} {calls[n][-1]['trials'] / calls[n][-1]['wall_s']:.2f} trials/s" for n in order))
+        figures["population"] = measure_population(pool, ray_ev, mesh, args)
         median, p95 = noop_round_trip_ms(ray_ev, args.calls)
         _say(f"ray: no-op actor call {median:.2f} ms median, {p95:.2f} ms p95 ({args.calls} calls)")
         figures.update(ray_noop_call_ms_median=round(median, 3), ray_noop_call_ms_p95=round(p95, 3),
@@ -345,13 +391,20 @@ def _print(figures: dict, protocol: dict, projection: dict, args: argparse.Names
           "workers' mean busy seconds)")
     print(f"outside trials  per job (object load, trial calls): pool {f['pool_non_trial_s_per_job']:.3f} s, ray "
           f"{f['ray_non_trial_s_per_job']:.3f} s; ray no-op actor call {f['ray_noop_call_ms_median']:.2f} ms")
+    for name in ("pool", "ray"):
+        pop = f["population"][name]
+        print(f"population      {name}: {f['population']['candidates']} candidates x "
+              f"{f['population']['trials_per_candidate']} trials, one call {pop['trials_per_s_one_call']:.2f} trials/s, "
+              f"a call per candidate {pop['trials_per_s_call_per_candidate']:.2f}: "
+              f"{pop['one_call_over_call_per_candidate']:.3f}x; outcomes "
+              f"{'identical' if pop['same_outcomes'] else 'DIFFERENT'}")
     print(f"PROJECTION (computed, not measured): paper protocol per object-policy pair: nominal + population "
           f"{protocol['population']} x {protocol['iterations']} iterations x the task's trials + {1 + protocol['top_k']} "
           f"shapes x {args.confirm_trials} confirmation trials, {args.cores_per_node} cores per node, one worker per "
           "core; low-high: mean trials - one trial per chunk at the episode limit")
     names = list(projection)
-    for mode, label in (("now", "as GRT runs today (one candidate per evaluate call)"),
-                        ("batched", "if a whole population were one evaluate call (not implemented)")):
+    for mode, label in (("population", "as GRT runs: a whole population per evaluate call"),
+                        ("per_candidate", "one candidate per evaluate call (GRT before 2026-11-25), for comparison")):
         print(f"  {label}:")
         print("  nodes workers | " + " | ".join(f"{n} ({projection[n]['trials']})" for n in names))
         for i, nodes in enumerate(NODES):

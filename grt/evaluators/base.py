@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +93,19 @@ class Evaluator(ABC):
         Returns:
             One :class:`CandidateResult` per mesh, in order; its trials follow ``seeds``.
         """
+
+    def evaluate_each(self, meshes: list[trimesh.Trimesh], seeds: list[int],
+                      on_result: Callable[[int, CandidateResult], None]) -> list[CandidateResult]:
+        """:meth:`evaluate`, calling ``on_result(i, result)`` as soon as mesh ``i``'s trials are all in.
+
+        The red-team loop scores a whole population in one call this way and journals each candidate
+        as it finishes, so a killed run loses little. This default calls back after :meth:`evaluate`,
+        in order; :class:`grt.evaluators.sim.SimEvaluator` calls back while the other meshes still run.
+        """
+        results = self.evaluate(meshes, seeds)
+        for i, result in enumerate(results):
+            on_result(i, result)
+        return results
 
     @abstractmethod
     def collision_parts(self, mesh: trimesh.Trimesh) -> list[np.ndarray]:

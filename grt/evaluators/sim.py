@@ -14,6 +14,7 @@ import logging
 import math
 import socket
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -105,12 +106,16 @@ class SimEvaluator(Evaluator):
         return seconds
 
     def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int],
-                 parts: list[list[np.ndarray]] | None = None, policy: dict | None = None) -> list[CandidateResult]:
+                 parts: list[list[np.ndarray]] | None = None, policy: dict | None = None,
+                 on_result: Callable[[int, CandidateResult], None] | None = None) -> list[CandidateResult]:
         """Score every mesh on the same seeds; see :meth:`grt.evaluators.base.Evaluator.evaluate`.
 
         ``parts`` gives each mesh's convex parts when the caller already has them (else they are made).
         ``policy``: another policy config to score with on the same workers (e.g. each checkpoint of a
         fine-tune in turn; the workers keep their simulator and swap only the policy).
+        ``on_result(i, result)``: called as soon as mesh ``i``'s trials are all in, while the others run.
+        Every mesh's trials go to the workers together (the first mesh's first), so a call of several
+        meshes keeps up to ``len(meshes) x len(seeds)`` workers busy.
         """
         seeds = [int(s) for s in seeds]
         if not seeds:
@@ -125,8 +130,17 @@ class SimEvaluator(Evaluator):
             job.policy = policy
         trials: list[dict[int, TrialOutcome]] = [{} for _ in meshes]
         wall = np.zeros(len(meshes))
+        results: list[CandidateResult | None] = [None] * len(meshes)
+
+        def finish(i: int) -> None:
+            results[i] = CandidateResult.from_trials([trials[i][s] for s in seeds], wall[i],
+                                                     {"collision": self.collision_kind, "parts": len(parts[i])})
+            if on_result is not None:
+                on_result(i, results[i])
+
         for i, reason in errors.items():
             trials[i] = {s: sim_error(s, reason) for s in seeds}
+            finish(i)
         bar = self._progress_bar(sum(len(j.seeds) for j in jobs))
 
         def on_trial(job: Job, outcome: TrialOutcome, seconds: float) -> None:
@@ -134,6 +148,8 @@ class SimEvaluator(Evaluator):
             wall[job.candidate] += seconds
             if bar is not None:
                 bar.update(1)
+            if results[job.candidate] is None and len(trials[job.candidate]) == len(seeds):
+                finish(job.candidate)
 
         start = time.perf_counter()
         try:
@@ -142,9 +158,12 @@ class SimEvaluator(Evaluator):
             self.run_s = time.perf_counter() - start
             if bar is not None:
                 bar.close()
-        return [CandidateResult.from_trials([t[s] for s in seeds], wall[i],
-                                            {"collision": self.collision_kind, "parts": len(parts[i])})
-                for i, t in enumerate(trials)]
+        return results
+
+    def evaluate_each(self, meshes: list[trimesh.Trimesh], seeds: list[int],
+                      on_result: Callable[[int, CandidateResult], None]) -> list[CandidateResult]:
+        """:meth:`evaluate` with a call-back per mesh as its trials finish (the others still running)."""
+        return self.evaluate(meshes, seeds, on_result=on_result)
 
     def collision_parts(self, mesh: trimesh.Trimesh) -> list[np.ndarray]:
         """The convex parts this evaluator simulates ``mesh`` with (cached, so cheap after evaluate)."""
