@@ -1,10 +1,11 @@
 """A whole ``python -m grt.run`` without the simulator, for the resume tests (imported by the app).
 
 ``TOY`` are the overrides of such a run: the task's session class is the base :class:`TaskSession` (only its
-class-level checks run) and :class:`ToyEvaluator` scores a candidate by its volume. With the environment
-variable ``GRT_TEST_INTERRUPT_AT=n`` the n-th ``evaluate`` call raises ``KeyboardInterrupt``, as Ctrl-C would;
-with ``GRT_TEST_HOLD_FILE=PATH`` every call after the first (the nominal object's) waits while PATH exists (at
-most 120 s): a test holds a run mid-way, with one journal line, for as long as it needs.
+class-level checks run) and :class:`ToyEvaluator` scores a candidate by its volume, one mesh after the other, each called back (and so
+journaled) before the next starts. With the environment variable ``GRT_TEST_INTERRUPT_AT=n`` the n-th mesh
+scored raises ``KeyboardInterrupt``, as Ctrl-C would; with ``GRT_TEST_HOLD_FILE=PATH`` every mesh after the
+first (the nominal object) waits while PATH exists (at most 120 s): a test holds a run mid-way, with one
+journal line, for as long as it needs.
 
 Two other policies, for the confirmation tests (``+evaluator.coin=P``, ``+evaluator.bar_mm=B``): ``coin``, a
 policy blind to geometry whose every trial is a fresh coin flip (success with probability ``P``, seeded by
@@ -47,17 +48,23 @@ class ToyEvaluator(Evaluator):
         return kept > 0.99 - 0.05 * np.random.default_rng(seed).random()
 
     def evaluate(self, meshes, seeds):
-        self.calls += 1
-        if self.calls == int(os.environ.get("GRT_TEST_INTERRUPT_AT", "0")):
-            raise KeyboardInterrupt
-        hold, end = os.environ.get("GRT_TEST_HOLD_FILE"), time.monotonic() + 120
-        while hold and self.calls > 1 and os.path.exists(hold) and time.monotonic() < end:
-            time.sleep(0.05)
+        return self.evaluate_each(meshes, seeds, lambda i, result: None)
+
+    def evaluate_each(self, meshes, seeds, on_result):
+        """One mesh after the other, each called back before the next starts (as the simulator's evaluator
+        calls back a population's candidates while the others run); ``calls`` counts meshes."""
         out = []
-        for mesh in meshes:
+        for i, mesh in enumerate(meshes):
+            self.calls += 1
+            if self.calls == int(os.environ.get("GRT_TEST_INTERRUPT_AT", "0")):
+                raise KeyboardInterrupt
+            hold, end = os.environ.get("GRT_TEST_HOLD_FILE"), time.monotonic() + 120
+            while hold and self.calls > 1 and os.path.exists(hold) and time.monotonic() < end:
+                time.sleep(0.05)
             trials = [TrialOutcome(s, float(ok), ok, "success" if ok else "missed")
                       for s in seeds for ok in [self._ok(mesh, s)]]
             out.append(CandidateResult.from_trials(trials, wall_s=0.0))
+            on_result(i, out[-1])
         return out
 
     def collision_parts(self, mesh):
