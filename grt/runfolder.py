@@ -445,9 +445,9 @@ def acquire(run_dir: str | Path) -> bool:
             holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
             os.close(fd)
             raise FolderBusyError(
-                f"{run_dir} is in use by another GRT process (PID {holder}, which holds {path}): two runs in one "
-                "folder would mix their journals. Wait for it to end (or stop it), or give this run another "
-                "folder (hydra.run.dir=PATH)") from None
+                f"{run_dir} is in use by another GRT process (PID {holder}, which holds {path}): two processes in "
+                "one folder would mix their files (a run's journal, a fine-tune's checkpoints). Wait for it to end "
+                "(or stop it), or give this command another folder (hydra.run.dir=PATH)") from None
         try:  # the previous holder removes the file as it lets go: locked, it must still be the file
             current = os.stat(path).st_ino == os.fstat(fd).st_ino
         except FileNotFoundError:
@@ -493,13 +493,14 @@ def _release_all() -> None:
         release(key)
 
 
-def claim(run_dir: Path, resume: str | None, log_file: str = "run.log") -> None:
-    """Make and lock the folder of a ``grt.run`` before Hydra writes anything into it.
+def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str = "run") -> None:
+    """Make and lock the folder of a GRT app's run (``python -m grt.<app>``) before Hydra writes anything
+    into it.
 
-    Refuses a new run in a folder that holds a run (its record would be rewritten and two runs' journals
-    mixed) and a folder another process runs in; notes what this command makes, so that a run refused
-    before it saved anything leaves nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's
-    log file (``<app>.log``).
+    Refuses a new run in a folder that holds a red-team run (its record would be rewritten and two runs'
+    journals mixed; or, for another app, the run's files overwritten by its own) and a folder another
+    process runs in; notes what this command makes, so that a run refused before it saved anything leaves
+    nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's log file (``<app>.log``).
 
     Raises:
         ResumeError: a new run (no ``resume=``) in a run's folder.
@@ -518,6 +519,10 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log") -> None:
                           "(hydra.run.dir=PATH)") from None
     if not resume and is_run_folder(run_dir):
         release(run_dir)
+        if app != "run":  # only grt.run continues a red-team run; any other app would write over its files
+            raise ResumeError(f"hydra.run.dir={run_dir} already holds a red-team run ({RUN_CONFIG} there), whose "
+                              f"files python -m grt.{app} would overwrite or mix with its own: give it a folder of "
+                              "its own (hydra.run.dir=PATH, or leave it out for a new one)")
         raise ResumeError(f"hydra.run.dir={run_dir} already holds a run ({RUN_CONFIG} there), which this command "
                           f"would overwrite: continue it with {resume_command(run_dir)}, or give a new folder")
     _claimed[run_dir.resolve()] = (first_new, before, hydra_files)
@@ -561,10 +566,13 @@ def _remove_new(run_dir: Path, first_new: Path | None) -> None:
 
 
 class RunFolderCallback(Callback):
-    """Hydra callback of ``grt.run`` (``conf/hydra/default.yaml``): :func:`claim` the run folder before Hydra
-    makes it and writes its record there. A sweep's jobs (new folders each) are locked by
-    :func:`grt.runner.run`. Hydra turns a callback's exception into a warning and goes on, so a refusal is
-    the apps' one ``error:`` line on stderr here, and exit code 2."""
+    """Hydra callback of every app that writes a run folder: ``grt.run`` (``conf/hydra/default.yaml``),
+    ``grt.train``, ``grt.blueteam``, ``grt.evaluate`` and ``grt.select`` (their root configs): :func:`claim`
+    the run folder before Hydra makes it and writes its record there, so two processes never share one
+    (a second ``grt.blueteam resume=DIR`` of a study still running is refused, not mixed into it). A
+    ``grt.run`` sweep's jobs (new folders each) are locked by :func:`grt.runner.run`. Hydra turns a
+    callback's exception into a warning and goes on, so a refusal is the apps' one ``error:`` line on
+    stderr here, and exit code 2."""
 
     def on_run_start(self, config: DictConfig, **kwargs) -> None:
         HydraConfig.instance().set_config(config)  # hydra.run.dir reads ${hydra:runtime.choices...}
@@ -573,7 +581,8 @@ class RunFolderCallback(Callback):
         except Exception:  # noqa: BLE001 - e.g. an unknown object in the folder's name: Hydra reports it
             return
         try:
-            claim(run_dir, OmegaConf.select(config, "resume"), f"{config.hydra.job.name}.log")
+            claim(run_dir, OmegaConf.select(config, "resume"), f"{config.hydra.job.name}.log",
+                  str(config.hydra.job.name))
         except UserError as exc:
             print(f"error: {exc}", file=sys.stderr, flush=True)
             raise SystemExit(2) from None

@@ -4,7 +4,9 @@ its CrashShapes (paper Table 3); a Hydra app.
     python -m grt.blueteam run=outputs/insertion/usb_plug/manual-topdm/<time>
     python -m grt.blueteam run=... resume=outputs/blueteam/<time>   # continue a killed fine-tune
 
-The work and the folder's files: :func:`grt.blueteam.study.blueteam`.
+The work and the folder's files: :func:`grt.blueteam.study.blueteam`. The folder is made and locked before
+Hydra writes there (:class:`grt.runfolder.RunFolderCallback`): a second study in it (the same ``resume=``) is
+refused with one line naming the first's PID, exit code 2.
 """
 
 from __future__ import annotations

@@ -7,7 +7,9 @@ object: ``score, ci95, score_name, score_unit, ci, success_rate, trials, outcome
 trials_s, trials_per_s, object, mesh_hash, saved`` (``saved``: the path of ``evaluation.json``). The
 simulator workers are started first, with one line saying so; ``trials_per_s`` is the trials over
 ``trials_s``, the time after start-up that the progress bar measured, so the two rates agree. ``score`` is the task's score (the success rate of a binary task, the mean
-opening of a drawer task...), its interval by the task's ``ci`` setting (:mod:`grt.scores`).
+opening of a drawer task...), its interval by the task's ``ci`` setting (:mod:`grt.scores`). The run folder
+is made and locked before Hydra writes there (:class:`grt.runfolder.RunFolderCallback`): a second process
+given the same folder is refused with one line naming the first's PID, exit code 2.
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ for the VLM selector the same keypoints, numbers and views the model saw), then 
 With ``probe.sigmas=[...]`` it also answers, before any simulation, at which σ these handles fold the
 object: :func:`probe_plausibility` deforms each search's first iteration at each σ and counts the
 candidates ``grt.run`` would refuse as implausible (``probe.json``, and a table on screen). A
-mistake (unknown object, bad mesh, missing API key, unwritable folder) is one ``error:`` line and exit
+mistake (unknown object, bad mesh, missing API key, unwritable folder, a folder another GRT process holds:
+:class:`grt.runfolder.RunFolderCallback` locks it before Hydra writes there) is one ``error:`` line and exit
 code 2.
 """
 

@@ -101,6 +101,21 @@ def test_an_untrainable_policy_is_refused_in_one_line(tmp_path):
     assert res.returncode == 2 and "not a red-team run folder" in res.stderr
 
 
+@pytest.mark.parametrize("how", ["resume", "hydra.run.dir"])
+def test_a_study_another_process_holds_is_refused_and_left_as_it_was(how, tmp_path):
+    """A killed study is continued in its folder (``resume=DIR``, or ``hydra.run.dir=DIR``); a second one
+    started while the first still runs there would mix their checkpoints and scores: it is refused (the
+    first's PID named) before it writes anything there."""
+    from tests.cli._locked_folder import refused_while_locked
+
+    study = tmp_path / "bt"
+    (study / ".hydra").mkdir(parents=True)
+    (study / ".hydra" / "config.yaml").write_text("run: somewhere\n")  # what makes it a folder to resume
+    (study / "metrics.csv").write_text("iteration,reward\n0,1.0\n")
+    (study / "last.pt").write_bytes(b"a checkpoint")
+    refused_while_locked("grt.blueteam", study, f"run={tmp_path / 'redteam'}", *TINY, f"{how}={study}")
+
+
 def test_crashshapes_are_chosen_by_rank_or_by_name():
     from grt.blueteam.core import BlueTeamError, select_crashshapes
 

@@ -108,3 +108,15 @@ def test_a_crashshape_file_is_scored_with_the_parts_its_run_saved(toy_configs, u
         f.unlink()
     with pytest.raises(CollisionError, match="no usable convex parts"):
         saved_parts(str(path), "auto")
+
+
+def test_a_folder_another_process_holds_is_refused_and_left_as_it_was(tmp_path):
+    """Two ``grt.evaluate`` in one folder would write over each other's ``evaluation.json``: the second is
+    refused (the first's PID named) before any simulation, and writes nothing there."""
+    from tests.cli._locked_folder import refused_while_locked
+
+    folder = tmp_path / "evaluate"
+    (folder / ".hydra").mkdir(parents=True)
+    (folder / ".hydra" / "config.yaml").write_text("object: can\n")
+    (folder / "evaluation.json").write_text('{"score": 0.5, "trials": []}')
+    refused_while_locked("grt.evaluate", folder, "object=can", "budget.trials=1", f"hydra.run.dir={folder}")

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 from PIL import Image
 
@@ -102,3 +103,34 @@ def test_probe_settings_are_checked_before_any_work(tmp_path):
         assert proc.returncode == 2 and proc.stderr.strip().startswith("error: " + message), proc.stderr
         assert "Traceback" not in proc.stderr
     assert not (tmp_path / "out" / "handles.json").exists()
+
+
+@pytest.mark.parametrize("flag", ["hydra.run.dir", "out_dir"])
+def test_a_folder_another_process_holds_is_refused_and_left_as_it_was(flag, tmp_path):
+    """Two ``grt.select`` in one folder would overwrite each other's ``handles.json``: the second is refused
+    (the first's PID named) before it writes there, whichever of the two flags gives the folder."""
+    from tests.cli._locked_folder import refused_while_locked
+
+    folder = tmp_path / "select"
+    (folder / ".hydra").mkdir(parents=True)
+    (folder / ".hydra" / "config.yaml").write_text("object: mug\n")
+    (folder / "handles.json").write_text('{"handles": [1, 2], "anchors": [3, 4, 5]}')
+    refused_while_locked("grt.select", folder, "object=can", "selector.k=3", f"{flag}={folder}")
+
+
+def test_a_red_team_runs_folder_is_refused_without_touching_its_handles(tmp_path):
+    """A red-team run keeps its ``handles.json`` (what its resume and its blue-team read): ``grt.select``
+    given that folder is refused, saying so for grt.select, and changes nothing there."""
+    from tests.cli._locked_folder import contents
+
+    run = tmp_path / "run"
+    (run / ".hydra").mkdir(parents=True)
+    (run / "run_config.yaml").write_text("grt_format: 2\n")
+    (run / "handles.json").write_text('{"handles": [1, 2], "anchors": [3, 4, 5]}')
+    before = contents(run)
+    proc = run_select("object=can", "selector.k=3", f"out_dir={run}")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip() == (f"error: hydra.run.dir={run} already holds a red-team run (run_config.yaml "
+                                   "there), whose files python -m grt.select would overwrite or mix with its own: "
+                                   "give it a folder of its own (hydra.run.dir=PATH, or leave it out for a new one)")
+    assert contents(run) == before
