@@ -503,7 +503,8 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
     nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's log file (``<app>.log``).
 
     Raises:
-        ResumeError: a new run (no ``resume=``) in a run's folder.
+        ResumeError: a new run (no ``resume=``) in a red-team run's folder, or another app's command (resumed
+            or not) there: only ``grt.run`` continues a red-team run.
         FolderBusyError: another process holds the folder's lock.
         OutputError: the folder cannot be made or written.
     """
@@ -517,10 +518,11 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
         _remove_new(run_dir, first_new)
         raise OutputError(f"cannot write the run folder {run_dir}: {exc.strerror}; give a folder you can write to "
                           "(hydra.run.dir=PATH)") from None
-    if not resume and is_run_folder(run_dir):
+    if is_run_folder(run_dir) and (app != "run" or not resume):
         release(run_dir)
         if app != "run":  # only grt.run continues a red-team run; any other app would write over its files
-            raise ResumeError(f"hydra.run.dir={run_dir} already holds a red-team run ({RUN_CONFIG} there), whose "
+            given = f"resume={resume}: {run_dir}" if resume else f"hydra.run.dir={run_dir}"
+            raise ResumeError(f"{given} already holds a red-team run ({RUN_CONFIG} there), whose "
                               f"files python -m grt.{app} would overwrite or mix with its own: give it a folder of "
                               "its own (hydra.run.dir=PATH, or leave it out for a new one)")
         raise ResumeError(f"hydra.run.dir={run_dir} already holds a run ({RUN_CONFIG} there), which this command "

@@ -116,6 +116,24 @@ def test_a_study_another_process_holds_is_refused_and_left_as_it_was(how, tmp_pa
     refused_while_locked("grt.blueteam", study, f"run={tmp_path / 'redteam'}", *TINY, f"{how}={study}")
 
 
+def test_a_resume_naming_a_red_team_runs_folder_is_refused_and_left_as_it_was(tmp_path):
+    """``resume=`` continues a study; a red-team run's folder is none, and its files are not the study's to
+    write over: refused in one line before anything is written there."""
+    from tests.cli._locked_folder import contents
+
+    run = tmp_path / "redteam"
+    (run / ".hydra").mkdir(parents=True)
+    (run / "run_config.yaml").write_text("grt_format: 2\n")
+    (run / "journal.jsonl").write_text("")
+    before = contents(run)
+    res = _cli("grt.blueteam", f"run={run}", *TINY, f"resume={run}")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    errors = [line for line in res.stderr.splitlines() if line.strip()]
+    assert len(errors) == 1 and errors[0].startswith(f"error: resume={run}: {run} already holds a red-team run"), errors
+    assert "python -m grt.blueteam would overwrite" in errors[0]
+    assert contents(run) == before and not (run / ".grt.lock").exists()
+
+
 def test_crashshapes_are_chosen_by_rank_or_by_name():
     from grt.blueteam.core import BlueTeamError, select_crashshapes
 
