@@ -11,8 +11,11 @@ and ``resume=DIR`` alone is the whole command to continue it. :func:`resume_over
 command before Hydra starts, so a refused resume writes nothing anywhere, and hands Hydra the run's own
 overrides; :func:`own_config` then gives the app the saved config. With ``resume=`` only the
 :data:`RESUME_FREE` keys may be given (they do not change the search); any other key must keep the run's
-own value. Blue-team fine-tunes and training runs use their Hydra record (``.hydra/config.yaml``) as their
-own, through :func:`resume_or`.
+own value. A training folder (``python -m grt.train``) is resumed the same way (:data:`TRAINING`): its
+record is Hydra's of its start, ``.hydra/config.yaml``, which a resume no longer rewrites (Hydra's files of
+a resume go to ``.hydra/resume``), :data:`TRAIN_FREE` are the keys a resume may give, and
+:func:`own_training_config` gives the app the recorded config. Blue-team fine-tunes use their Hydra record
+as their own, through :func:`resume_or`.
 
 Formats: 0, a folder from before ``run_config.yaml`` (a journal and Hydra's record of its start); 1, a
 ``run_config.yaml`` without ``grt_format``; 2, the current one. Every reader goes through
@@ -30,7 +33,7 @@ import os
 import shlex
 import shutil
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,6 +79,18 @@ ADDED_DEFAULTS = {"object_scale": 1.0, "mesh": {}, "budget.confirm_trials": 0,
                   "deformer.validity": False}
 # Keys added within format 2 (issue 33): a run made before them ran without them.
 ADDED_IN_FORMAT2 = {"budget.tau_rel": None, "deformer.max_volume_change": None}
+# A training (``python -m grt.train``): the keys a resume may set, none of which changes what is trained:
+# train.iterations only says where it stops (a resumed training continues up to it), saving a checkpoint
+# draws no random number, each env's episodes are seeded by (train.seed, env index) whatever process steps
+# it (train.workers), and the export, the final evaluation, loggers, the collision cache and Hydra's files
+# come after the training or only record it.
+TRAIN_FREE = ("train.iterations", "train.save_interval", "train.workers", "train.export",
+              "train.overwrite_shipped", "eval_trials", "logger", "paths.cache_dir", "hydra")
+# The parts of a resumed training's config taken from the command; all the rest is its record.
+TRAIN_FROM_COMMAND = ("train.iterations", "train.save_interval", "train.workers", "train.export",
+                      "train.overwrite_shipped", "eval_trials", "logger", "paths")
+TRAIN_RECORD = ".hydra/config.yaml"
+TRAIN_FOLDERS = "outputs/train/<task>/<train>/<time>"
 _ABSENT = object()
 
 
@@ -103,6 +118,32 @@ def refuse_unless_run(run_dir: Path) -> None:
         return
     raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier run "
                       f"({RUN_FOLDERS}).")
+
+
+def is_training_folder(path: str | Path) -> bool:
+    """Whether ``resume=path`` can continue a ``grt.train`` training there: Hydra's record of its start
+    (``.hydra/config.yaml`` with a ``train`` and a ``task``), and no red-team run's record."""
+    folder = Path(path)
+    record = folder / TRAIN_RECORD
+    if not record.is_file() or is_run_folder(folder):
+        return False
+    try:
+        config = OmegaConf.load(record)
+    except Exception:  # noqa: BLE001 - an unreadable record: SavedRun.training names it
+        return True
+    return isinstance(config, DictConfig) and "train" in config and "task" in config
+
+
+def refuse_unless_training(run_dir: Path) -> None:
+    """Raise :class:`ResumeError` unless ``run_dir`` is a training folder (names the problem and the fix)."""
+    if not run_dir.is_dir():
+        why = "no such folder"
+    elif not is_training_folder(run_dir):
+        why = f"not a training folder of python -m grt.train (no {TRAIN_RECORD} of a training)"
+    else:
+        return
+    raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier training "
+                      f"({TRAIN_FOLDERS}), or leave resume= out to start a new one.")
 
 
 def resume_or(resume: str | None, default: str) -> str:
@@ -178,12 +219,16 @@ def read_record(run_dir: Path) -> tuple[int, list, dict, DictConfig]:
         version = int(record.get(FORMAT_KEY, 1))
         overrides, choices, config = record.overrides, record.choices, record.config
     else:
-        hydra_dir = run_dir / ".hydra"
         version = 0
-        config = OmegaConf.load(hydra_dir / "config.yaml")
-        overrides = OmegaConf.load(hydra_dir / "overrides.yaml")
-        choices = OmegaConf.load(hydra_dir / "hydra.yaml").hydra.runtime.choices
+        overrides, choices, config = _hydra_record(run_dir)
     return version, OmegaConf.to_container(overrides), OmegaConf.to_container(choices), config
+
+
+def _hydra_record(run_dir: Path) -> tuple[ListConfig, DictConfig, DictConfig]:
+    """``(overrides, choices, config)`` of Hydra's files in ``run_dir/.hydra``."""
+    hydra_dir = run_dir / ".hydra"
+    choices = OmegaConf.load(hydra_dir / "hydra.yaml").hydra.runtime.choices
+    return OmegaConf.load(hydra_dir / "overrides.yaml"), choices, OmegaConf.load(hydra_dir / "config.yaml")
 
 
 def migrate(cfg: DictConfig, version: int) -> DictConfig:
@@ -262,12 +307,15 @@ class SavedRun:
         choices: its config-group options, e.g. ``{"selector": "all"}``.
         config: its config (resolved; Hydra's record for a format-0 folder), migrated to the current format.
         format: the folder's format (see the module docstring).
+        started: whether the record is of the start (``False``: a training folder whose ``.hydra`` a resume
+            rewrote, before ``grt.train`` kept the start's record: the record of its latest resume).
     """
 
     overrides: list[str]
     choices: dict
     config: DictConfig
     format: int = FORMAT
+    started: bool = True
 
     @classmethod
     def load(cls, run_dir: Path) -> SavedRun:
@@ -279,8 +327,23 @@ class SavedRun:
         except Exception as exc:  # noqa: BLE001 - any unreadable record is the same user error
             raise ResumeError(f"resume={run_dir}: its record of the run cannot be read ({exc}); "
                               "start a new run") from None
-        own = [o for o in overrides if not _under(_key(o), ("resume", "hydra", "paths.output_dir"))]
-        return cls(own, {k: v for k, v in choices.items() if not _under(k, ("hydra",))}, config, version)
+        return cls(_own_overrides(overrides), _own_choices(choices), config, version)
+
+    @classmethod
+    def training(cls, run_dir: Path) -> SavedRun:
+        """Read a training folder (``python -m grt.train``): Hydra's record of its start, ``DIR/.hydra``, as it
+        is (a training's config has no format of its own to migrate); a missing folder or one that is not a
+        training raises :class:`ResumeError`."""
+        refuse_unless_training(run_dir)
+        try:
+            overrides, choices, config = _hydra_record(run_dir)
+            own = _own_overrides(OmegaConf.to_container(overrides))
+            choices = _own_choices(OmegaConf.to_container(choices))
+            started = config.get("resume") is None  # a resume's record names the folder it resumed
+        except Exception as exc:  # noqa: BLE001 - any unreadable record is the same user error
+            raise ResumeError(f"resume={run_dir}: its record of the training ({TRAIN_RECORD} and the files "
+                              f"beside it) cannot be read ({exc}); start a new training") from None
+        return cls(own, choices, config, 0, started)
 
     def value(self, key: str):
         """The run's option of group ``key``, or its value of config key ``key`` (``_ABSENT``: none)."""
@@ -299,18 +362,56 @@ class SavedRun:
         return have is not _ABSENT and have == override.value()
 
 
-def resume_overrides(overrides: list[str]) -> list[str]:
+def _own_overrides(overrides: list[str]) -> list[str]:
+    """A start's overrides but those no part of the run: ``resume=``, ``hydra.*``, the output folder."""
+    return [o for o in overrides if not _under(_key(o), ("resume", "hydra", "paths.output_dir"))]
+
+
+def _own_choices(choices: dict) -> dict:
+    return {k: v for k, v in choices.items() if not _under(k, ("hydra",))}
+
+
+@dataclass(frozen=True)
+class Resumable:
+    """One kind of folder ``resume=DIR`` continues, for :func:`resume_overrides`.
+
+    Attributes:
+        load: reads DIR's record (raises :class:`ResumeError` for a folder of another kind).
+        free: whether a resume may give a key (it cannot change what the folder's work is).
+        noun: what the folder holds, in a refusal ("run", "training").
+        record: the file of DIR that keeps its config, named in a refusal.
+        allowed: the keys a resume may give, as a refusal lists them.
+    """
+
+    load: Callable[[Path], SavedRun]
+    free: Callable[[str], bool]
+    noun: str
+    record: str
+    allowed: str
+
+
+# A red-team run (python -m grt.run) and a training (python -m grt.train).
+RUN = Resumable(SavedRun.load, lambda key: _under(key, RESUME_FREE) or _evaluator_free(key), "run", RUN_CONFIG,
+                f"{', '.join(RESUME_FREE)}.*, evaluator=sim|ray and the evaluator's keys but "
+                f"{', '.join(EVALUATOR_RESULTS)}")
+TRAINING = Resumable(SavedRun.training, lambda key: _under(key, TRAIN_FREE), "training", TRAIN_RECORD,
+                     f"{', '.join(TRAIN_FREE)}.*")
+
+
+def resume_overrides(overrides: list[str], kind: Resumable = RUN) -> list[str]:
     """The overrides Hydra gets for a command with ``resume=DIR``: the run's own ones.
 
-    Called before Hydra starts, so a refused resume writes nothing. The other overrides given must be
-    :data:`RESUME_FREE` keys or give the run's own values; the free ones are passed on, and Hydra writes
-    its files of a resume under ``DIR/.hydra/resume`` (``DIR/.hydra`` stays the record of the start).
+    Called before Hydra starts, so a refused resume writes nothing. The other overrides given must be free
+    keys of ``kind`` (a red-team run's: :data:`RESUME_FREE`; a training's: :data:`TRAIN_FREE`) or give the
+    run's own values; the free ones are passed on, and Hydra writes its files of a resume under
+    ``DIR/.hydra/resume`` (``DIR/.hydra`` stays the record of the start).
 
     Returns:
         ``overrides`` unchanged without ``resume=``.
 
     Raises:
-        ResumeError: DIR is missing or not a run, or an override would change the run (names the keys).
+        ResumeError: DIR is missing or not a run (of ``kind``), or an override would change the run (names
+            the keys).
     """
     try:
         given = OverridesParser.create().parse_overrides(overrides)
@@ -322,17 +423,16 @@ def resume_overrides(overrides: list[str]) -> list[str]:
     run_dir = resume[-1].value()
     if not isinstance(run_dir, str):
         raise ResumeError(f"{resume[-1].input_line}: resume= takes one run folder")
-    saved = SavedRun.load(Path(run_dir))
-    free = [o for o in given if _under(o.key_or_group, RESUME_FREE) or _evaluator_free(o.key_or_group)]
+    saved = kind.load(Path(run_dir))
+    free = [o for o in given if kind.free(o.key_or_group)]
     changed = [o for o in given if o.key_or_group != "resume" and o not in free and not saved.keeps(o)]
     if changed:
-        what = ", ".join(f"{o.key_or_group} (the run's: {_shown_value(saved.value(o.key_or_group))}, "
+        what = ", ".join(f"{o.key_or_group} (the {kind.noun}'s: {_shown_value(saved.value(o.key_or_group))}, "
                          f"given: {o.input_line.partition('=')[2] or 'deleted'})" for o in changed)
         raise ResumeError(
-            f"resume={run_dir}: {what} would change the run, which keeps its own config ({RUN_CONFIG} there). "
-            f"Continue it with resume={run_dir} alone (allowed with it: {', '.join(RESUME_FREE)}.*, evaluator=sim|ray "
-            f"and the evaluator's keys but {', '.join(EVALUATOR_RESULTS)}), "
-            "or start a new run with these settings: the same command without resume=")
+            f"resume={run_dir}: {what} would change the {kind.noun}, which keeps its own config ({kind.record} "
+            f"there). Continue it with resume={run_dir} alone (allowed with it: {kind.allowed}), "
+            f"or start a new {kind.noun} with these settings: the same command without resume=")
     own = [line for line in saved.overrides if not any(_under(_key(line), (o.key_or_group,)) for o in free)]
     return [*own, "hydra.output_subdir=.hydra/resume", *(o.input_line for o in free), resume[-1].input_line]
 
@@ -357,6 +457,20 @@ def own_config(cfg: DictConfig) -> DictConfig:
         evaluator.update({k: plain(saved_ev[k]) if isinstance(saved_ev[k], DictConfig) else saved_ev[k]
                           for k in EVALUATOR_RESULTS if k in saved_ev})
         own.evaluator = evaluator
+    own.resume = cfg.resume
+    return own
+
+
+def own_training_config(cfg: DictConfig) -> DictConfig:
+    """A resumed training's config: its record (``DIR/.hydra/config.yaml``, as composed at its start, its
+    interpolations kept), with the :data:`TRAIN_FROM_COMMAND` parts of this command (``cfg``: composed by
+    Hydra from the training's own overrides and the free ones, :func:`resume_overrides`)."""
+    saved = SavedRun.training(Path(cfg.resume))
+    own = OmegaConf.create(OmegaConf.to_container(saved.config, resolve=False))
+    for key in TRAIN_FROM_COMMAND:
+        value = OmegaConf.select(cfg, key, default=_ABSENT)
+        if value is not _ABSENT:
+            OmegaConf.update(own, key, plain(value) if isinstance(value, DictConfig) else value, merge=False)
     own.resume = cfg.resume
     return own
 

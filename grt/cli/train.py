@@ -3,11 +3,25 @@
     python -m grt.train task=insertion train=insertion_state
     python -m grt.train task=insertion train=insertion_pcd
     python -m grt.train resume=outputs/train/insertion/insertion_state/<time>
+    python -m grt.train resume=outputs/train/insertion/insertion_state/<time> train.iterations=3000
     python -m grt.train task=insertion train=insertion_state \
         train.export=grt/policies/checkpoints/insertion_state.pt train.overwrite_shipped=true
 
 The trained policy is the run folder's ``policy.pt``; ``train.export=PATH`` copies it elsewhere too, and
 replacing a shipped policy (under ``grt/policies/checkpoints``) needs ``train.overwrite_shipped=true``.
+
+``resume=DIR`` alone is the whole command to continue a training, with its own config: Hydra's record of
+its start, ``DIR/.hydra/config.yaml`` (:func:`grt.runfolder.own_training_config`). :func:`cli` checks DIR
+and the command before Hydra starts and hands Hydra the training's own overrides: only the keys of
+:data:`grt.runfolder.TRAIN_FREE` may be given with it (``train.iterations`` to train longer — give it again
+on each later resume, the record keeps the start's —, ``train.save_interval``, ``train.workers``,
+``train.export``, ``train.overwrite_shipped``, ``eval_trials``, ``logger``, ``paths.cache_dir``,
+``hydra.*``); any other override that would change the training is one ``error:`` line (exit code 2),
+nothing written. Hydra's files of a resume go to ``DIR/.hydra/resume``, so ``DIR/.hydra`` stays the record
+of the start. Training goes on from ``DIR/last.pt`` (saved every ``train.save_interval`` iterations); a
+folder without one (stopped before its first save) says so in one line and trains from iteration 0. A
+folder whose ``.hydra`` a resume rewrote (before this was so) resumes from that record, with the task,
+training config and object its ``last.pt`` was trained with.
 
 The work and the run folder's files: :func:`grt.rl.policy_training.train_policy`.
 """
@@ -18,17 +32,19 @@ import sys
 from pathlib import Path
 
 import hydra
+from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 import grt.config  # noqa: F401 - registers schemas and resolvers
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
-from grt.rl.policy_training import train_policy
-from grt.runfolder import ResumeError, discard_new, resume_or  # also registers the resume_or resolver
+from grt.runfolder import TRAINING, ResumeError, discard_new, resume_or, resume_overrides
 
 
 @hydra.main(config_path=CONF_DIR, config_name="train_policy", version_base="1.3")
 def main(cfg: DictConfig) -> float:
+    from grt.rl.policy_training import resumed_config, train_policy  # torch: not for a refused command
+
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with exit_on_user_error():
         try:
@@ -37,6 +53,7 @@ def main(cfg: DictConfig) -> float:
                 if resume.resolve() != out_dir.resolve():
                     raise ResumeError(f"resume={cfg.resume} with hydra.run.dir={out_dir}: a training goes on in its "
                                       f"own folder; give resume={cfg.resume} alone")
+                cfg = resumed_config(cfg, out_dir)
             result = train_policy(cfg, out_dir)
         except Exception as exc:
             found = find_user_error(exc)
@@ -54,6 +71,13 @@ def main(cfg: DictConfig) -> float:
     return float(result["best_success"])
 
 
-def cli() -> None:
-    """The console script ``grt-train``."""
-    run_cli(main)
+def cli(argv: list[str] | None = None) -> None:
+    """The console script ``grt-train``: a ``resume=`` is checked, and becomes the training's own command,
+    before Hydra starts (as ``grt-run`` does, :func:`grt.cli.run.cli`); ``sys.argv`` is left as it is."""
+    parser = get_args_parser()
+    args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+    with exit_on_user_error():
+        if any("resume=" in arg for arg in args.overrides):
+            args.overrides = resume_overrides(args.overrides, TRAINING)
+    run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
+                               config_name="train_policy"))

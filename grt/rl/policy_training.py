@@ -9,6 +9,8 @@ episodes through the same evaluator as ``python -m grt.evaluate``. The run folde
 optimizer state) is the trained policy; ``train.export=PATH`` copies it to PATH too, an explicit opt-in:
 a shipped policy (a file under ``grt/policies/checkpoints``, what ``conf/policy/<name>.yaml`` points at)
 is replaced only with ``train.overwrite_shipped=true`` as well, checked before any training.
+
+A resume (``resume=DIR``) trains with the training's own config, :func:`resumed_config`.
 """
 
 from __future__ import annotations
@@ -18,8 +20,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.utils import instantiate
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from grt.config import plain
 from grt.errors import OutputError, check_output_file
@@ -31,6 +36,7 @@ from grt.policies.rsl_rl import RslRlPolicy
 from grt.redteam import episode_seeds
 from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train, write_json
 from grt.rl.vec_env import Shape, TaskVecEnv
+from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
 
 log = logging.getLogger("grt.train")
 
@@ -76,6 +82,42 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
     logger.log_summary({k: v for k, v in result.items() if not isinstance(v, dict)})
     logger.finish()
     return result
+
+
+def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
+    """The config a resume of the training in ``out_dir`` trains with: its record, with the free keys of this
+    command (:func:`grt.runfolder.own_training_config`); says in one line (console and the run's log) when
+    the folder has no ``last.pt`` and training starts at iteration 0.
+
+    A folder whose ``.hydra`` a resume rewrote, before ``grt.train`` kept the start's record, holds the
+    record of that resume, which need not be what its ``last.pt`` was trained with (a ``resume=DIR`` alone
+    then composed the default task): the task, training config and object come from ``last.pt`` (the free
+    ``train.*`` keys this command gives), and a line says so.
+    """
+    own = own_training_config(cfg)
+    last = out_dir / "last.pt"
+    if not last.exists():
+        log.warning("resume=%s: no last.pt there (it is saved every train.save_interval=%s iterations, and "
+                    "the training stopped before its first save): nothing was saved yet, so training starts "
+                    "at iteration 0", cfg.resume, own.train.save_interval)
+    if SavedRun.training(Path(cfg.resume)).started:
+        return own
+    rewritten = f"{Path(cfg.resume) / TRAIN_RECORD} is the record of an earlier resume (made before grt.train " \
+                "kept the record of a training's start)"
+    trained = torch.load(last, map_location="cpu", weights_only=False).get("grt", {}) if last.exists() else {}
+    if not {"task_cfg", "train_cfg"} <= set(trained):
+        log.warning("%s: continuing with that record", rewritten)
+        return own
+    given = {o.key_or_group for o in OverridesParser.create().parse_overrides(
+        list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else [])}
+    command = {key.removeprefix("train."): OmegaConf.select(own, key) for key in TRAIN_FROM_COMMAND
+               if key.startswith("train.") and key in given}
+    own.task = trained["task_cfg"]
+    own.train = {**trained["train_cfg"], **command}
+    own.object = trained.get("object", own.object)
+    log.warning("%s: continuing with the task, training config and object last.pt was trained with (task %s, "
+                "train %s, object %s)", rewritten, own.task.name, own.train.name, own.object)
+    return own
 
 
 def _export(cfg: DictConfig, train_cfg: dict, mesh, out_dir: Path, result: dict) -> None:

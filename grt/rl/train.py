@@ -186,6 +186,9 @@ class _Loop:
 
     def run(self) -> dict:
         spec, started, stopped_early = self.spec, time.perf_counter(), False
+        if self.start_it >= spec.iterations:
+            log.info("%s: already trained %d iterations, train.iterations=%d: nothing to train (a larger "
+                     "train.iterations trains longer)", self.out, self.start_it, spec.iterations)
         bar = tqdm(total=spec.iterations, initial=self.start_it, desc="ppo", unit="it", dynamic_ncols=True)
         if spec.validation is not None and self.start_it == 0:  # the policy before any update
             self.save("val_current.pt", -1)

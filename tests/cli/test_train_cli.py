@@ -45,11 +45,11 @@ def test_a_resume_of_a_missing_folder_is_refused(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no outputs/
 
 
-@pytest.mark.slow
 def test_a_resume_of_a_missing_folder_is_refused_with_a_run_folder_given_too(tmp_path):
-    """With ``hydra.run.dir`` the folder's resolver never sees ``resume=``: the app checks it itself."""
+    """With ``hydra.run.dir`` the folder's resolver never sees ``resume=``: the command is checked before Hydra
+    starts (and the app checks it again), so Hydra makes no folder."""
     line = one_error_line(grt_train(f"resume={tmp_path / 'gone'}", f"hydra.run.dir={tmp_path / 'here'}", cwd=tmp_path))
-    assert "no such folder" in line and f"the new folder {tmp_path / 'here'} was removed" in line, line
+    assert "no such folder" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
