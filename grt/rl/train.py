@@ -179,7 +179,29 @@ class _Loop:
         self.steps_per_it = env.num_envs * int(spec.train_cfg["num_steps_per_env"])
         v = spec.validation
         self.val = _Validation(v.score if v else None, out, v.patience if v else 3, v.perfect if v else 1.0,
-                               v.tie if v else None)
+                               v.tie if v else None, start_it=start_it)
+        self._drop_after_restart()
+
+    def _drop_after_restart(self) -> None:
+        """Bring the run folder back to iteration ``start_it`` (what an uninterrupted training had then): a
+        killed attempt's metrics rows, validations, ``val_best.pt`` and ``best.pt`` from later iterations are
+        dropped (the validations by :class:`_Validation`), in one log line."""
+        dropped, metrics = list(self.val.dropped), self.out / "metrics.csv"
+        later = len(_read_rows(metrics, 10**12)) - len(self.rows)
+        if later > 0:
+            _write_rows(metrics, self.rows)
+            dropped.insert(0, f"{later} rows of metrics.csv")
+        best = self.out / "best.pt"
+        it = _checkpoint_iter(best)
+        if it is not None and it >= self.start_it:
+            success = torch.load(best, map_location="cpu", weights_only=False)["grt"].get("best_success")
+            best.unlink()
+            dropped.append(f"best.pt (iteration {it + 1}, training success {success:.3f}" + (
+                ")" if self.start_it == 0 else f"; it had replaced the best before then, {self.best:.3f}: the "
+                "next training success to beat that writes best.pt)"))
+        if dropped:
+            log.warning("%s: resuming at iteration %d, dropped what the stopped attempt did after it: %s", self.out,
+                        self.start_it, "; ".join(dropped))
 
     def save(self, name: str, it: int) -> None:
         _save(self.runner, self.out / name, it, {**self.cfg, "best_success": self.best})
@@ -190,11 +212,13 @@ class _Loop:
             log.info("%s: already trained %d iterations, train.iterations=%d: nothing to train (a larger "
                      "train.iterations trains longer)", self.out, self.start_it, spec.iterations)
         bar = tqdm(total=spec.iterations, initial=self.start_it, desc="ppo", unit="it", dynamic_ncols=True)
-        if spec.validation is not None and self.start_it == 0:  # the policy before any update
-            self.save("val_current.pt", -1)
-            self.val.check(-1, self.out / "val_current.pt")
+        due = self.start_it - 1  # the policy before any update, or last.pt's when its validation is missing
+        if (spec.validation is not None and (due == -1 or self.start_it % spec.validation.interval == 0)
+                and all(h[0] != due for h in self.val.history)):  # (a run killed while validating)
+            self.save("val_current.pt", due)
+            stopped_early = self.val.check(due, self.out / "val_current.pt") and due >= 0
         try:
-            for it in range(self.start_it, spec.iterations):
+            for it in range(self.start_it, self.start_it if stopped_early else spec.iterations):
                 if self.step(it, bar):
                     stopped_early = True
                     break
@@ -244,27 +268,54 @@ class _Loop:
 class _Validation:
     """Early stopping on validation episodes: keeps ``val_best.pt``, counts validations without gain."""
 
-    def __init__(self, validate, out: Path, patience: int, perfect: float | None = 1.0, tie: float | None = None):
+    def __init__(self, validate, out: Path, patience: int, perfect: float | None = 1.0, tie: float | None = None,
+                 start_it: int = 0):
+        """Resumed at ``start_it``: the validations of ``validation.json`` from later iterations (all of them
+        from 0, whose run validates the untrained policy again) are dropped, the best and the count without
+        gain replayed from the rest, and ``val_best.pt`` kept only if it is the rest's best; ``dropped`` says
+        what went."""
         self.validate, self.out, self.patience, self.perfect, self.tie = validate, out, int(patience), perfect, tie
         state = out / "validation.json"
         saved = json.loads(state.read_text()) if state.exists() else {}
-        self.history: list = saved.get("history", [])
-        self.best = max((h[1] for h in self.history), default=-np.inf)
-        self.stale = saved.get("stale", 0)
+        self.history: list = []
+        self.best, self.stale, self.dropped, later, kept = -np.inf, 0, [], [], None
+        for it, score in saved.get("history", []):
+            if start_it > 0 and it < start_it:
+                self.history.append([it, score])
+                kept = it if self._judge(score) else kept  # the iteration val_best.pt was then
+            else:
+                later.append(f"iteration {it + 1}: {score:.3f}")
+        if later:
+            write_json(state, self._state())
+            self.dropped.append(f"{len(later)} validation{'s' if len(later) > 1 else ''} ({', '.join(later)})")
+        best_it = _checkpoint_iter(out / "val_best.pt")
+        if best_it is not None and best_it != kept:
+            (out / "val_best.pt").unlink()
+            self.dropped.append(f"val_best.pt (iteration {best_it + 1}" + (
+                ")" if kept is None else f"; it had replaced iteration {kept + 1}'s, best {self.best:.3f}: "
+                "the next validation to beat that writes val_best.pt)"))
+
+    def _judge(self, score: float) -> bool:
+        """Count ``score`` in; True when its checkpoint becomes ``val_best.pt``."""
+        if score > self.best + (self.tie or 0.0):
+            self.best, self.stale = score, 0
+            return True
+        self.stale += 1
+        if self.tie is not None and score >= self.best - self.tie:  # a tie: keep the more trained policy
+            self.best = max(self.best, score)
+            return True
+        return False
+
+    def _state(self) -> dict:
+        return {"history": self.history, "stale": self.stale, "best": self.best}
 
     def check(self, it: int, checkpoint: Path) -> bool:
         """Validate ``checkpoint``; True when training should stop."""
         score = float(self.validate(checkpoint))
         self.history.append([it, score])
-        if score > self.best + (self.tie or 0.0):
-            self.best, self.stale = score, 0
+        if self._judge(score):
             checkpoint.replace(self.out / "val_best.pt")
-        else:
-            self.stale += 1
-            if self.tie is not None and score >= self.best - self.tie:
-                checkpoint.replace(self.out / "val_best.pt")  # a tie: keep the more trained policy
-                self.best = max(self.best, score)
-        write_json(self.out / "validation.json", {"history": self.history, "stale": self.stale, "best": self.best})
+        write_json(self.out / "validation.json", self._state())
         log.info("validation at iteration %d: %.3f (best %.3f)", it + 1, score, self.best)
         return (self.perfect is not None and self.best >= self.perfect) or self.stale >= self.patience
 
@@ -332,6 +383,11 @@ def export_policy(checkpoint: str | Path, dest: str | Path, metrics: dict | None
     with atomic_path(dest) as tmp:
         torch.save(small, tmp)
     return dest
+
+
+def _checkpoint_iter(path: Path) -> int | None:
+    """The iteration a checkpoint of :func:`_save` was saved at (``None``: no such file)."""
+    return int(torch.load(path, map_location="cpu", weights_only=False)["iter"]) if path.exists() else None
 
 
 def _save(runner: OnPolicyRunner, path: Path, it: int, cfg: dict) -> None:
