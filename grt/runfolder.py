@@ -14,8 +14,9 @@ overrides; :func:`own_config` then gives the app the saved config. With ``resume
 own value. A training folder (``python -m grt.train``) is resumed the same way (:data:`TRAINING`): its
 record is Hydra's of its start, ``.hydra/config.yaml``, which a resume no longer rewrites (Hydra's files of
 a resume go to ``.hydra/resume``), :data:`TRAIN_FREE` are the keys a resume may give, and
-:func:`own_training_config` gives the app the recorded config. Blue-team fine-tunes use their Hydra record
-as their own, through :func:`resume_or`.
+:func:`own_training_config` gives the app the recorded config. A blue-team study (``python -m grt.blueteam``)
+likewise (:data:`STUDY`): its record is Hydra's of its start too, :data:`STUDY_FREE` are the keys a resume may
+give, and :func:`own_study_config` gives the app the recorded config.
 
 Formats: 0, a folder from before ``run_config.yaml`` (a journal and Hydra's record of its start); 1, a
 ``run_config.yaml`` without ``grt_format``; 2, the current one. Every reader goes through
@@ -91,6 +92,22 @@ TRAIN_FROM_COMMAND = ("train.iterations", "train.save_interval", "train.workers"
                       "train.overwrite_shipped", "eval_trials", "logger", "paths")
 TRAIN_RECORD = ".hydra/config.yaml"
 TRAIN_FOLDERS = "outputs/train/<task>/<train>/<time>"
+# A blue-team study (``python -m grt.blueteam``): the keys a resume may set, none of which changes the study
+# (its red-team run, CrashShapes, held-out shapes, episode seeds, PPO settings, guard and confirmation):
+# workers only says which process steps an env (each env is seeded by its index) and how many evaluate,
+# blueteam.iterations and blueteam.val_patience only where a fine-tune not yet finished stops (a finished
+# one, policy.pt written, is not trained again), blueteam.rered.enabled whether a re-red-team follows the
+# table, the evaluator's
+# backend and workers give the same results (its collision keys stay the study's), and the collision
+# cache and Hydra's files only record. With the evaluator's free keys (``_evaluator_free``).
+STUDY_FREE = ("workers", "blueteam.iterations", "blueteam.val_patience", "blueteam.rered.enabled",
+              "paths.cache_dir", "hydra")
+# The parts of a resumed study's config taken from the command (and the evaluator but its collision keys),
+# and those taken from it only when it gives them (else the record's, whatever today's defaults).
+STUDY_FROM_COMMAND = ("workers", "paths")
+STUDY_WHEN_GIVEN = ("blueteam.iterations", "blueteam.val_patience", "blueteam.rered.enabled")
+STUDY_RECORD = TRAIN_RECORD
+STUDY_FOLDERS = "outputs/blueteam/<time>"
 _ABSENT = object()
 
 
@@ -144,6 +161,38 @@ def refuse_unless_training(run_dir: Path) -> None:
         return
     raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier training "
                       f"({TRAIN_FOLDERS}), or leave resume= out to start a new one.")
+
+
+def is_study_folder(path: str | Path) -> bool:
+    """Whether ``resume=path`` can continue a ``grt.blueteam`` study there: Hydra's record of its start
+    (``.hydra/config.yaml`` with a ``run`` and a ``blueteam``), and no red-team run's record."""
+    folder = Path(path)
+    record = folder / STUDY_RECORD
+    if not record.is_file() or is_run_folder(folder):
+        return False
+    try:
+        config = OmegaConf.load(record)
+    except Exception:  # noqa: BLE001 - an unreadable record: SavedRun.study names it
+        return True
+    return isinstance(config, DictConfig) and "run" in config and "blueteam" in config
+
+
+def refuse_unless_study(run_dir: Path) -> None:
+    """Raise :class:`ResumeError` unless ``run_dir`` is a blue-team study's folder (names the problem and the
+    fix); a red-team run's folder is named as :func:`claim` names it."""
+    if is_run_folder(run_dir):
+        raise ResumeError(f"resume={run_dir}: {run_dir} already holds a red-team run ({RUN_CONFIG} there), whose "
+                          "files python -m grt.blueteam would overwrite or mix with its own: it is no study to "
+                          f"resume. Blue-team that run with run={run_dir} (without resume=), or give resume= the "
+                          f"folder of an earlier study ({STUDY_FOLDERS})")
+    if not run_dir.is_dir():
+        why = "no such folder"
+    elif not is_study_folder(run_dir):
+        why = f"not a study folder of python -m grt.blueteam (no {STUDY_RECORD} of a study)"
+    else:
+        return
+    raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier study "
+                      f"({STUDY_FOLDERS}), or leave resume= out to start a new one.")
 
 
 def resume_or(resume: str | None, default: str) -> str:
@@ -307,8 +356,9 @@ class SavedRun:
         choices: its config-group options, e.g. ``{"selector": "all"}``.
         config: its config (resolved; Hydra's record for a format-0 folder), migrated to the current format.
         format: the folder's format (see the module docstring).
-        started: whether the record is of the start (``False``: a training folder whose ``.hydra`` a resume
-            rewrote, before ``grt.train`` kept the start's record: the record of its latest resume).
+        started: whether the record is of the start (``False``: a training's or study's folder whose ``.hydra``
+            a resume rewrote, before ``grt.train`` / ``grt.blueteam`` kept the start's record: the record of
+            its latest resume).
     """
 
     overrides: list[str]
@@ -335,14 +385,27 @@ class SavedRun:
         is (a training's config has no format of its own to migrate); a missing folder or one that is not a
         training raises :class:`ResumeError`."""
         refuse_unless_training(run_dir)
+        return cls._hydra(run_dir, "training")
+
+    @classmethod
+    def study(cls, run_dir: Path) -> SavedRun:
+        """Read a blue-team study's folder (``python -m grt.blueteam``) as :meth:`training` reads a training's
+        (``started``: ``False`` for a folder whose ``.hydra`` a resume rewrote, before ``grt.blueteam`` kept the
+        start's record); a missing folder or one that is not a study raises :class:`ResumeError`."""
+        refuse_unless_study(run_dir)
+        return cls._hydra(run_dir, "study")
+
+    @classmethod
+    def _hydra(cls, run_dir: Path, noun: str) -> SavedRun:
+        """Hydra's record in ``run_dir/.hydra`` of the start of a ``noun`` (``training``, ``study``)."""
         try:
             overrides, choices, config = _hydra_record(run_dir)
             own = _own_overrides(OmegaConf.to_container(overrides))
             choices = _own_choices(OmegaConf.to_container(choices))
             started = config.get("resume") is None  # a resume's record names the folder it resumed
         except Exception as exc:  # noqa: BLE001 - any unreadable record is the same user error
-            raise ResumeError(f"resume={run_dir}: its record of the training ({TRAIN_RECORD} and the files "
-                              f"beside it) cannot be read ({exc}); start a new training") from None
+            raise ResumeError(f"resume={run_dir}: its record of the {noun} ({TRAIN_RECORD} and the files "
+                              f"beside it) cannot be read ({exc}); start a new {noun}") from None
         return cls(own, choices, config, 0, started)
 
     def value(self, key: str):
@@ -378,7 +441,7 @@ class Resumable:
     Attributes:
         load: reads DIR's record (raises :class:`ResumeError` for a folder of another kind).
         free: whether a resume may give a key (it cannot change what the folder's work is).
-        noun: what the folder holds, in a refusal ("run", "training").
+        noun: what the folder holds, in a refusal ("run", "training", "study").
         record: the file of DIR that keeps its config, named in a refusal.
         allowed: the keys a resume may give, as a refusal lists them.
     """
@@ -396,13 +459,18 @@ RUN = Resumable(SavedRun.load, lambda key: _under(key, RESUME_FREE) or _evaluato
                 f"{', '.join(EVALUATOR_RESULTS)}")
 TRAINING = Resumable(SavedRun.training, lambda key: _under(key, TRAIN_FREE), "training", TRAIN_RECORD,
                      f"{', '.join(TRAIN_FREE)}.*")
+# A blue-team study (python -m grt.blueteam).
+STUDY = Resumable(SavedRun.study, lambda key: _under(key, STUDY_FREE) or _evaluator_free(key), "study", STUDY_RECORD,
+                  f"{', '.join(STUDY_FREE)}.*, evaluator=sim|ray and the evaluator's keys but "
+                  f"{', '.join(EVALUATOR_RESULTS)}")
 
 
 def resume_overrides(overrides: list[str], kind: Resumable = RUN) -> list[str]:
     """The overrides Hydra gets for a command with ``resume=DIR``: the run's own ones.
 
     Called before Hydra starts, so a refused resume writes nothing. The other overrides given must be free
-    keys of ``kind`` (a red-team run's: :data:`RESUME_FREE`; a training's: :data:`TRAIN_FREE`) or give the
+    keys of ``kind`` (a red-team run's: :data:`RESUME_FREE`; a training's: :data:`TRAIN_FREE`; a study's:
+    :data:`STUDY_FREE` and the evaluator's keys but :data:`EVALUATOR_RESULTS`) or give the
     run's own values; the free ones are passed on, and Hydra writes its files of a resume under
     ``DIR/.hydra/resume`` (``DIR/.hydra`` stays the record of the start).
 
@@ -471,6 +539,30 @@ def own_training_config(cfg: DictConfig) -> DictConfig:
         value = OmegaConf.select(cfg, key, default=_ABSENT)
         if value is not _ABSENT:
             OmegaConf.update(own, key, plain(value) if isinstance(value, DictConfig) else value, merge=False)
+    own.resume = cfg.resume
+    return own
+
+
+def own_study_config(cfg: DictConfig, overrides: list[str] | None = None) -> DictConfig:
+    """A resumed blue-team study's config: its record (``DIR/.hydra/config.yaml``, as composed at its start,
+    its interpolations kept), with the :data:`STUDY_FROM_COMMAND` parts of this command (``cfg``: composed by
+    Hydra from the study's own overrides and the free ones, :func:`resume_overrides`), the
+    :data:`STUDY_WHEN_GIVEN` ones it sets (``overrides``: Hydra's; by default this job's), and this command's
+    evaluator but the study's collision keys (:data:`EVALUATOR_RESULTS`)."""
+    saved = SavedRun.study(Path(cfg.resume))
+    own = OmegaConf.create(OmegaConf.to_container(saved.config, resolve=False))
+    if overrides is None:
+        overrides = list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
+    given = {_key(o) for o in overrides}
+    for key in (*STUDY_FROM_COMMAND, *(k for k in STUDY_WHEN_GIVEN if k in given)):
+        value = OmegaConf.select(cfg, key, default=_ABSENT)
+        if value is not _ABSENT:
+            OmegaConf.update(own, key, plain(value) if isinstance(value, DictConfig) else value, merge=False)
+    if isinstance(cfg.get("evaluator"), DictConfig):
+        evaluator, saved_ev = plain(cfg.evaluator), own.get("evaluator") or {}
+        evaluator.update({k: OmegaConf.to_container(saved_ev[k]) if isinstance(saved_ev[k], DictConfig)
+                          else saved_ev[k] for k in EVALUATOR_RESULTS if k in saved_ev})
+        own.evaluator = evaluator
     own.resume = cfg.resume
     return own
 

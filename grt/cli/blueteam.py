@@ -2,36 +2,68 @@
 its CrashShapes (paper Table 3); a Hydra app.
 
     python -m grt.blueteam run=outputs/insertion/usb_plug/manual-topdm/<time>
-    python -m grt.blueteam run=... resume=outputs/blueteam/<time>   # continue a killed fine-tune
+    python -m grt.blueteam resume=outputs/blueteam/<time>                      # continue a killed study
+    python -m grt.blueteam resume=outputs/blueteam/<time> workers=8 blueteam.rered.enabled=false
+    python -m grt.blueteam resume=outputs/blueteam/<time> blueteam.iterations=300 blueteam.val_patience=10
 
 The work and the folder's files: :func:`grt.blueteam.study.blueteam`. The folder is made and locked before
 Hydra writes there (:class:`grt.runfolder.RunFolderCallback`): a second study in it (the same ``resume=``) is
 refused with one line naming the first's PID, exit code 2.
+
+``resume=DIR`` alone is the whole command to continue a study, with its own config, ``run=`` included:
+Hydra's record of its start, ``DIR/.hydra/config.yaml`` (:func:`grt.runfolder.own_study_config`). :func:`cli`
+checks DIR and the command before Hydra starts and hands Hydra the study's own overrides: only the keys of
+:data:`grt.runfolder.STUDY_FREE` may be given with it (``workers``, ``blueteam.iterations`` to fine-tune
+longer, or shorter, a study not yet finished — give it again on each later resume, the record keeps the
+start's —, ``blueteam.val_patience`` likewise, ``blueteam.rered.enabled``, ``paths.cache_dir``, ``hydra.*``), and ``evaluator=sim|ray`` and the evaluator's
+keys but its collision ones; any other override that would change the study is one ``error:`` line naming
+the key, the study's value and the given one (exit code 2), nothing written. A folder that is not a study (a
+red-team run's among them) is refused the same way. Hydra's files of a resume go to ``DIR/.hydra/resume``, so
+``DIR/.hydra`` stays the record of the start. A folder whose ``.hydra`` a resume rewrote (before this was so)
+goes on with that record, the config it last ran with, and a line saying so.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import hydra
+from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 import grt.config  # noqa: F401 - schemas and resolvers
-import grt.runfolder  # noqa: F401 - registers the resume_or resolver
-from grt.blueteam.core import BlueTeamError
-from grt.blueteam.study import blueteam
-from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
-from grt.runner import run as red_team
+from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
+from grt.runfolder import STUDY, ResumeError, discard_new, resume_or, resume_overrides  # registers resume_or
 
 
 @hydra.main(config_path=CONF_DIR, config_name="blueteam", version_base="1.3")
 def main(cfg: DictConfig) -> None:
+    from grt.blueteam.core import BlueTeamError  # torch and the simulator: not for a refused command
+    from grt.blueteam.study import blueteam, resumed_config
+    from grt.runner import run as red_team
+
     out_dir = Path(HydraConfig.get().runtime.output_dir)
+    in_place = bool(cfg.resume) and Path(cfg.resume).resolve() == out_dir.resolve()
     with exit_on_user_error():
-        if cfg.run is None:
-            raise BlueTeamError("give the red-team run to blue-team: python -m grt.blueteam run=<run folder>")
-        result = blueteam(cfg, out_dir, red_team=red_team)
+        try:
+            if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
+                resume = Path(resume_or(cfg.resume, ""))
+                if not in_place:
+                    raise ResumeError(f"resume={cfg.resume} with hydra.run.dir={out_dir}: a study goes on in its "
+                                      f"own folder; give resume={cfg.resume} alone")
+                cfg = resumed_config(cfg, resume)
+            if cfg.run is None:
+                raise BlueTeamError("give the red-team run to blue-team: python -m grt.blueteam run=<run folder>")
+            result = blueteam(cfg, out_dir, red_team=red_team)
+        except Exception as exc:
+            found = find_user_error(exc)
+            if found is None or in_place:  # a study's own folder keeps what it holds
+                raise
+            removed = discard_new(out_dir)  # refused before it saved anything: no folder left behind
+            print(f"error: {found}" + (f" ({removed})" if removed else ""), file=sys.stderr)
+            raise SystemExit(2) from None
     print((out_dir / "table3.md").read_text())
     if "rered" in result:
         r = result["rered"]
@@ -40,6 +72,13 @@ def main(cfg: DictConfig) -> None:
     print(f"files in {out_dir}")
 
 
-def cli() -> None:
-    """The console script ``grt-blueteam``."""
-    run_cli(main)
+def cli(argv: list[str] | None = None) -> None:
+    """The console script ``grt-blueteam``: a ``resume=`` is checked, and becomes the study's own command,
+    before Hydra starts (as ``grt-run`` does, :func:`grt.cli.run.cli`); ``sys.argv`` is left as it is."""
+    parser = get_args_parser()
+    args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+    with exit_on_user_error():
+        if any("resume=" in arg for arg in args.overrides):
+            args.overrides = resume_overrides(args.overrides, STUDY)
+    run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
+                               config_name="blueteam"))

@@ -3,38 +3,18 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.blueteam.conftest import ROOT, _cli
+
 TINY = ["blueteam.iterations=2", "blueteam.num_envs=2", "blueteam.num_steps_per_env=8", "blueteam.max_steps=16",
         "blueteam.eval_trials=1", "blueteam.val_trials=1", "blueteam.val_trials_nominal=2", "blueteam.val_interval=1", "blueteam.heldout.candidates=1",
         "blueteam.heldout.nearby=1", "blueteam.confirm.candidates=2", "blueteam.confirm.trials=2",
         "blueteam.anchor.updates=2", "blueteam.anchor.envs=2", "blueteam.anchor.steps=4", "workers=1"]
-
-
-def _cli(module: str, *args: str, timeout: float = 900):
-    env = {**os.environ, "WANDB_MODE": "disabled"}
-    return subprocess.run([sys.executable, "-m", module, *args], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=timeout)
-
-
-@pytest.fixture(scope="module")
-def red_team_run(tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("redteam") / "run"
-    out = _cli("grt.run", "task=insertion", "policy=insertion_state", "selector=manual", "budget=smoke",
-               "budget.sigma=0.15", "budget.trials=2", "budget.population=4", "budget.iterations=1",
-               # the paper's point handles find failing CrashShapes of the plug in the first generation (the
-               # study trains on one and holds another out; its re-red-team repeats this budget); smooth ones
-               # at this sigma fold the thin plug (invalid, not simulated)
-               "deformer.method=exact", "deformer.validity=false", f"hydra.run.dir={run_dir}")
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    return run_dir
 
 
 @pytest.mark.sim
@@ -71,14 +51,15 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     assert "anchor: 8 nominal states of the starting policy" in res.stderr + res.stdout
     normalizer = [k for k in before if k.startswith("obs_normalizer.")]  # frozen: the inputs stay as trained
     assert normalizer and all(torch.equal(before[k], after[k]) for k in normalizer)
-    # A fine-tune killed before it finished: resume continues from last.pt, repeats no iteration.
+    # A fine-tune killed before it finished: resume continues from last.pt, repeats no iteration (the study's
+    # own run= and settings may be given again; blueteam.iterations and blueteam.rered.enabled may change).
     (out_dir / "policy.pt").unlink()
     scores = json.loads((out_dir / "scores.json").read_text())
     scores.pop("after")
     (out_dir / "scores.json").write_text(json.dumps(scores))
     (out_dir / "val_best.pt").unlink(missing_ok=True)
-    res = _cli("grt.blueteam", f"run={red_team_run}", *TINY, "blueteam.iterations=3", "blueteam.val_patience=99",
-               "blueteam.rered.enabled=false", f"resume={out_dir}")
+    res = _cli("grt.blueteam", f"run={red_team_run}", *TINY, "blueteam.iterations=3", "blueteam.rered.enabled=false",
+               f"resume={out_dir}")
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     iterations = [int(line.split(",")[0]) for line in (out_dir / "metrics.csv").read_text().splitlines()[1:]]
     assert iterations == [0, 1, 2]
@@ -106,14 +87,15 @@ def test_a_study_another_process_holds_is_refused_and_left_as_it_was(how, tmp_pa
     """A killed study is continued in its folder (``resume=DIR``, or ``hydra.run.dir=DIR``); a second one
     started while the first still runs there would mix their checkpoints and scores: it is refused (the
     first's PID named) before it writes anything there."""
+    from tests.blueteam.test_blueteam_resume import write_record
     from tests.cli._locked_folder import refused_while_locked
 
     study = tmp_path / "bt"
-    (study / ".hydra").mkdir(parents=True)
-    (study / ".hydra" / "config.yaml").write_text("run: somewhere\n")  # what makes it a folder to resume
+    command = [f"run={tmp_path / 'redteam'}", *TINY]
+    write_record(study, command)  # the record of its start: what makes it a study to resume
     (study / "metrics.csv").write_text("iteration,reward\n0,1.0\n")
     (study / "last.pt").write_bytes(b"a checkpoint")
-    refused_while_locked("grt.blueteam", study, f"run={tmp_path / 'redteam'}", *TINY, f"{how}={study}")
+    refused_while_locked("grt.blueteam", study, *command, f"{how}={study}")
 
 
 def test_a_resume_naming_a_red_team_runs_folder_is_refused_and_left_as_it_was(tmp_path):
