@@ -61,7 +61,7 @@ def fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: di
         extra={**{k: v for k, v in ckpt["grt"].items() if k not in _OWN_KEYS},
                "blueteam": {"from": checkpoint, "shapes": [g.name for g in shapes], "weights": weights}},
         validation=ValidationSpec(guard, interval=int(bt.val_interval), patience=int(bt.val_patience),
-                                  perfect=1.0 if rule.binary else None))
+                                  perfect=1.0 if rule.binary else None, restart=guard.restart))
     try:
         result = train(env, spec)
     finally:

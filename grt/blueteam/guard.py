@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from grt.blueteam.core import Geometry, nominal_regressed, rank_candidates
+from grt.fileio import atomic_path
 from grt.tasks.base import SIM_ERROR
 
 log = logging.getLogger("grt.blueteam")
@@ -76,14 +77,28 @@ def keep_candidate(out_dir: Path, path: Path, iteration: int, keep: int) -> None
     best validated ones (see :func:`grt.blueteam.core.rank_candidates`); drop those it displaces."""
     if keep <= 0:
         return
-    top = {f"it{r['iteration']}.pt" for r in rank_candidates(read_rows(out_dir / "validation.jsonl"), keep)}
+    top = _top(out_dir, keep)
     folder = out_dir / "candidates"
     folder.mkdir(exist_ok=True)
     if f"it{iteration}.pt" in top:
         shutil.copyfile(path, folder / f"it{iteration}.pt")
-    for f in folder.glob("it*.pt"):
-        if f.name not in top:
-            f.unlink()
+    _drop_candidates(out_dir, top)
+
+
+def _top(out_dir: Path, keep: int) -> set[str]:
+    """The file names in ``candidates/`` of the ``keep`` best rows of ``validation.jsonl``."""
+    detail = out_dir / "validation.jsonl"
+    rows = read_rows(detail) if detail.exists() else []
+    return {f"it{r['iteration']}.pt" for r in rank_candidates(rows, keep)}
+
+
+def _drop_candidates(out_dir: Path, top: set[str]) -> list[str]:
+    """Remove the checkpoints of ``candidates/`` not named in ``top``; returns their names."""
+    gone = sorted((f for f in (out_dir / "candidates").glob("it*.pt") if f.name not in top),
+                  key=lambda f: (len(f.stem), f.stem))
+    for f in gone:
+        f.unlink()
+    return [f"candidates/{f.name}" for f in gone]
 
 
 class NominalGuard:
@@ -127,6 +142,39 @@ class NominalGuard:
                                 "regressed": bool(regressed), "why": why, "episodes": per}) + "\n")
         keep_candidate(self.out_dir, path, iteration, self.keep)
         return crash - 2.0 if regressed else crash
+
+    def restart(self, validated: list[int]) -> list[str]:
+        """Bring the guard's files back to what a training (fresh, or resumed from ``last.pt``) kept: the
+        ``restart`` of its :class:`grt.rl.train.ValidationSpec`, ``validated`` the checkpoint iterations of the
+        validations kept. The stopped attempt's other ``validation.jsonl`` rows go (a resume at iteration N
+        keeps those up to N; one from 0 none, its run validating the untrained policy again, and then
+        ``val_nominal.json`` goes too), with the ``candidates/`` no longer among the best, so the confirmation
+        chooses among checkpoints of this run only. Iteration N's candidate, if it ranks and its file went
+        (displaced by the stopped attempt's later ones), is ``last.pt`` again. Returns what went."""
+        keep, dropped = {int(it) + 1 for it in validated}, []
+        if self.detail.exists():
+            rows = [(line, int(json.loads(line)["iteration"])) for line in self.detail.read_text().splitlines()
+                    if line.strip()]
+            later = [it for _, it in rows if it not in keep]
+            if later:
+                with atomic_path(self.detail) as tmp:
+                    tmp.write_text("".join(f"{line}\n" for line, it in rows if it in keep))
+                dropped.append(f"{len(later)} row{'s' if len(later) > 1 else ''} of validation.jsonl (iteration"
+                               f"{'s' if len(later) > 1 else ''} {', '.join(map(str, later))})")
+        if not keep and self.start_file.exists():
+            self.start_file.unlink()
+            dropped.append("val_nominal.json (the nominal episodes before fine-tuning: validated again)")
+        if self.keep > 0 and (self.out_dir / "candidates").is_dir():
+            top = _top(self.out_dir, self.keep)
+            dropped += _drop_candidates(self.out_dir, top)
+            last = self.out_dir / "last.pt"
+            if last.exists():
+                name = f"it{int(torch.load(last, map_location='cpu', weights_only=False)['iter']) + 1}.pt"
+                if name in top and not (self.out_dir / "candidates" / name).exists():
+                    shutil.copyfile(last, self.out_dir / "candidates" / name)
+                    log.info("candidates/%s is last.pt again (the stopped attempt's later checkpoints had "
+                             "displaced it)", name)
+        return dropped
 
     def validate(self, path: Path) -> dict[str, list[float]]:
         """The checkpoint's validation episodes: ``{"nominal": [...], <CrashShape>: [...], ...}``."""

@@ -61,6 +61,9 @@ class ValidationSpec:
             value, e.g. a drawer opening).
         tie: a later checkpoint within this much of the best replaces ``val_best.pt`` (the validation
             cannot tell them apart: the more trained one is kept), though it does not count as a gain.
+        restart: called once before training (fresh or resumed) with the checkpoint iterations whose
+            validations the run kept (a resume drops the stopped attempt's later ones): ``score``'s own
+            records of any other validation are to go; returns what went, for the one log line saying so.
     """
 
     score: Callable[[Path], float]
@@ -68,6 +71,7 @@ class ValidationSpec:
     patience: int = 3
     perfect: float | None = 1.0
     tie: float | None = None
+    restart: Callable[[list[int]], list[str]] | None = None
 
 
 @dataclass
@@ -185,8 +189,11 @@ class _Loop:
     def _drop_after_restart(self) -> None:
         """Bring the run folder back to iteration ``start_it`` (what an uninterrupted training had then): a
         killed attempt's metrics rows, validations, ``val_best.pt`` and ``best.pt`` from later iterations are
-        dropped (the validations by :class:`_Validation`), in one log line."""
+        dropped (the validations by :class:`_Validation`, the score's own records by its ``restart``), in one
+        log line."""
         dropped, metrics = list(self.val.dropped), self.out / "metrics.csv"
+        if self.spec.validation is not None and self.spec.validation.restart is not None:
+            dropped += self.spec.validation.restart([int(h[0]) for h in self.val.history])
         later = len(_read_rows(metrics, 10**12)) - len(self.rows)
         if later > 0:
             _write_rows(metrics, self.rows)
