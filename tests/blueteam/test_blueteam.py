@@ -8,6 +8,7 @@ import sys
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from tests.blueteam.conftest import ROOT, _cli
 
@@ -51,18 +52,29 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
     assert "anchor: 8 nominal states of the starting policy" in res.stderr + res.stdout
     normalizer = [k for k in before if k.startswith("obs_normalizer.")]  # frozen: the inputs stay as trained
     assert normalizer and all(torch.equal(before[k], after[k]) for k in normalizer)
-    # A fine-tune killed before it finished: resume continues from last.pt, repeats no iteration (the study's
-    # own run= and settings may be given again; blueteam.iterations and blueteam.rered.enabled may change).
+    # A fine-tune killed before it finished: resume=DIR continues with the study's own run= and settings (not
+    # the defaults: 150 iterations, a re-red-team), from last.pt, repeating no iteration; blueteam.iterations and
+    # blueteam.rered.enabled may change; the start's .hydra record stays byte for byte.
+    start = {name: (out_dir / ".hydra" / name).read_bytes() for name in ("config.yaml", "overrides.yaml", "hydra.yaml")}
     (out_dir / "policy.pt").unlink()
     scores = json.loads((out_dir / "scores.json").read_text())
     scores.pop("after")
     (out_dir / "scores.json").write_text(json.dumps(scores))
     (out_dir / "val_best.pt").unlink(missing_ok=True)
-    res = _cli("grt.blueteam", f"run={red_team_run}", *TINY, "blueteam.iterations=3", "blueteam.rered.enabled=false",
-               f"resume={out_dir}")
+    for name in ("table3.json", "table3.md", "blueteam.json"):
+        (out_dir / name).unlink()
+    res = _cli("grt.blueteam", "blueteam.iterations=3", "blueteam.rered.enabled=false", f"resume={out_dir}")
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     iterations = [int(line.split(",")[0]) for line in (out_dir / "metrics.csv").read_text().splitlines()[1:]]
     assert iterations == [0, 1, 2]
+    assert {name: (out_dir / ".hydra" / name).read_bytes() for name in start} == start
+    composed = OmegaConf.load(out_dir / ".hydra" / "resume" / "config.yaml")
+    assert (composed.run, composed.resume, composed.blueteam.iterations) == (str(red_team_run), str(out_dir), 3)
+    assert composed.blueteam.num_envs == 2 and composed.workers == 1  # TINY's, from the study's record
+    assert (out_dir / "policy.pt").is_file() and "after" in json.loads((out_dir / "scores.json").read_text())
+    assert json.loads((out_dir / "blueteam.json").read_text())["run"] == str(red_team_run)
+    assert (out_dir / "table3.json").is_file()
+    assert "resuming" in (out_dir / "blueteam.log").read_text()
 
 
 def test_an_untrainable_policy_is_refused_in_one_line(tmp_path):

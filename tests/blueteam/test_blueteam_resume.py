@@ -3,15 +3,14 @@ record of its start, ``DIR/.hydra``, which stays as it was); an override that wo
 before Hydra starts, naming the key; a folder that is not a study is refused; a folder whose ``.hydra`` a resume
 rewrote (before this was so) still resumes, with that record.
 
-The fast tests read a record written here from the composed config (as Hydra writes it); the slow one makes a
-tiny study of a tiny red-team run, kills it (as a kill leaves it: no ``policy.pt``, no scores after) and resumes
-it with ``resume=DIR`` alone.
+These tests read a record written here from the composed config (as Hydra writes it); a real tiny study
+killed and resumed with ``resume=DIR`` alone is the end of
+``tests/blueteam/test_blueteam.py::test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes``.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import shutil
 from pathlib import Path
 
@@ -172,35 +171,3 @@ def test_a_record_a_resume_rewrote_still_resumes(recorded, tmp_path):
     assert not saved.started and saved.overrides == again[:-1]
     assert resume_overrides([f"resume={recorded}"], STUDY) == [*again[:-1], "hydra.output_subdir=.hydra/resume",
                                                                f"resume={recorded}"]
-
-
-# --------------------------------------------------------------------------------- a real (tiny) study
-
-def hydra_record(folder: Path) -> dict[str, bytes]:
-    return {name: (folder / ".hydra" / name).read_bytes() for name in ("config.yaml", "overrides.yaml", "hydra.yaml")}
-
-
-@pytest.mark.sim
-@pytest.mark.slow
-def test_resume_alone_continues_a_killed_study_with_its_own_run(red_team_run, tmp_path):
-    """Not the defaults (150 iterations, a re-red-team): the resume keeps the study's own."""
-    study = tmp_path / "bt"
-    command = [f"run={red_team_run}", *TINY, "blueteam.anchor.updates=0", "blueteam.rered.enabled=false"]
-    res = _cli("grt.blueteam", *command, f"hydra.run.dir={study}")
-    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
-    start = hydra_record(study)
-    (study / "policy.pt").unlink()  # killed before it exported its policy and scored it after
-    scores = json.loads((study / "scores.json").read_text())
-    scores.pop("after")
-    (study / "scores.json").write_text(json.dumps(scores))
-    for name in ("table3.json", "table3.md", "blueteam.json"):
-        (study / name).unlink()
-    res = _cli("grt.blueteam", f"resume={study}")
-    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
-    assert hydra_record(study) == start  # the record of the start, byte for byte
-    composed = OmegaConf.load(study / ".hydra" / "resume" / "config.yaml")
-    assert (composed.run, composed.resume, composed.blueteam.iterations) == (str(red_team_run), str(study), 2)
-    assert (study / "policy.pt").is_file() and "after" in json.loads((study / "scores.json").read_text())
-    assert json.loads((study / "blueteam.json").read_text())["run"] == str(red_team_run)
-    assert (study / "table3.json").is_file() and not (study / "rered").exists()
-    assert "resuming" in (study / "blueteam.log").read_text()  # from last.pt, no iteration repeated
