@@ -137,44 +137,47 @@ def refuse_unless_run(run_dir: Path) -> None:
                       f"({RUN_FOLDERS}).")
 
 
-def is_training_folder(path: str | Path) -> bool:
-    """Whether ``resume=path`` can continue a ``grt.train`` training there: Hydra's record of its start
-    (``.hydra/config.yaml`` with a ``train`` and a ``task``), and no red-team run's record."""
+def _holds_record(path: str | Path, keys: tuple[str, ...]) -> bool:
+    """Whether ``path`` holds Hydra's record of a start (``.hydra/config.yaml``) with ``keys`` at its top,
+    and no red-team run's record (an unreadable record counts: reading it names the problem)."""
     folder = Path(path)
     record = folder / TRAIN_RECORD
     if not record.is_file() or is_run_folder(folder):
         return False
     try:
         config = OmegaConf.load(record)
-    except Exception:  # noqa: BLE001 - an unreadable record: SavedRun.training names it
+    except Exception:  # noqa: BLE001 - an unreadable record: SavedRun._hydra names it
         return True
-    return isinstance(config, DictConfig) and "train" in config and "task" in config
+    return isinstance(config, DictConfig) and all(key in config for key in keys)
+
+
+def is_training_folder(path: str | Path) -> bool:
+    """Whether ``resume=path`` can continue a ``grt.train`` training there: Hydra's record of its start
+    (``.hydra/config.yaml`` with a ``train`` and a ``task``), and no red-team run's record."""
+    return _holds_record(path, ("train", "task"))
 
 
 def refuse_unless_training(run_dir: Path) -> None:
     """Raise :class:`ResumeError` unless ``run_dir`` is a training folder (names the problem and the fix)."""
-    if not run_dir.is_dir():
-        why = "no such folder"
-    elif not is_training_folder(run_dir):
-        why = f"not a training folder of python -m grt.train (no {TRAIN_RECORD} of a training)"
-    else:
-        return
-    raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier training "
-                      f"({TRAIN_FOLDERS}), or leave resume= out to start a new one.")
+    _refuse_unless(run_dir, is_training_folder(run_dir), "training", "python -m grt.train", TRAIN_FOLDERS)
 
 
 def is_study_folder(path: str | Path) -> bool:
     """Whether ``resume=path`` can continue a ``grt.blueteam`` study there: Hydra's record of its start
     (``.hydra/config.yaml`` with a ``run`` and a ``blueteam``), and no red-team run's record."""
-    folder = Path(path)
-    record = folder / STUDY_RECORD
-    if not record.is_file() or is_run_folder(folder):
-        return False
-    try:
-        config = OmegaConf.load(record)
-    except Exception:  # noqa: BLE001 - an unreadable record: SavedRun.study names it
-        return True
-    return isinstance(config, DictConfig) and "run" in config and "blueteam" in config
+    return _holds_record(path, ("run", "blueteam"))
+
+
+def _refuse_unless(run_dir: Path, holds: bool, noun: str, app: str, folders: str) -> None:
+    """Raise :class:`ResumeError` unless ``run_dir`` ``holds`` a ``noun`` of ``app`` (``folders``: where they are)."""
+    if not run_dir.is_dir():
+        why = "no such folder"
+    elif not holds:
+        why = f"not a {noun} folder of {app} (no {TRAIN_RECORD} of a {noun})"
+    else:
+        return
+    raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier {noun} "
+                      f"({folders}), or leave resume= out to start a new one.")
 
 
 def refuse_unless_study(run_dir: Path) -> None:
@@ -185,14 +188,7 @@ def refuse_unless_study(run_dir: Path) -> None:
                           "files python -m grt.blueteam would overwrite or mix with its own: it is no study to "
                           f"resume. Blue-team that run with run={run_dir} (without resume=), or give resume= the "
                           f"folder of an earlier study ({STUDY_FOLDERS})")
-    if not run_dir.is_dir():
-        why = "no such folder"
-    elif not is_study_folder(run_dir):
-        why = f"not a study folder of python -m grt.blueteam (no {STUDY_RECORD} of a study)"
-    else:
-        return
-    raise ResumeError(f"resume={run_dir}: {why}, so nothing to resume. Give the folder of an earlier study "
-                      f"({STUDY_FOLDERS}), or leave resume= out to start a new one.")
+    _refuse_unless(run_dir, is_study_folder(run_dir), "study", "python -m grt.blueteam", STUDY_FOLDERS)
 
 
 def resume_or(resume: str | None, default: str) -> str:

@@ -22,14 +22,15 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
+from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.errors import ConfigCompositionException, HydraException, OverrideParseException
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
-import grt.runfolder  # noqa: F401 - registers the resume_or resolver of hydra.run.dir before composition
 from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resolvers too
 from grt.config import BudgetSchema, add_resolver, budget_hint, unknown_budget_key
 from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
+from grt.runfolder import resume_overrides  # also registers the resume_or resolver of hydra.run.dir
 
 CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
@@ -242,3 +243,16 @@ def _setup_error(exc: OSError) -> OutputError | None:
         tb = tb.tb_next
     return OutputError(f"cannot write {exc.filename}: {exc.strerror}; give an output folder you can write "
                        "to: hydra.run.dir=PATH (hydra.sweep.dir=PATH with -m)")
+
+
+def resumable_cli(main: Callable, config_name: str, kind, argv: list[str] | None = None) -> None:
+    """Run the Hydra app ``main`` (config ``config_name``) from the command line, a ``resume=DIR`` first
+    checked and made the folder's own command for its ``kind`` (:data:`grt.runfolder.TRAINING`, ``STUDY``)
+    before Hydra starts, as ``grt-run`` does (:func:`grt.cli.run.cli`); ``sys.argv`` is left as it is."""
+    parser = get_args_parser()
+    args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+    with exit_on_user_error():
+        if any("resume=" in arg for arg in args.overrides):
+            args.overrides = resume_overrides(args.overrides, kind)
+    run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
+                               config_name=config_name))

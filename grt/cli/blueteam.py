@@ -29,13 +29,12 @@ import sys
 from pathlib import Path
 
 import hydra
-from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 import grt.config  # noqa: F401 - schemas and resolvers
-from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
-from grt.runfolder import STUDY, ResumeError, discard_new, resume_or, resume_overrides  # registers resume_or
+from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
+from grt.runfolder import STUDY, ResumeError, discard_new, resume_or  # registers resume_or
 
 
 @hydra.main(config_path=CONF_DIR, config_name="blueteam", version_base="1.3")
@@ -73,12 +72,5 @@ def main(cfg: DictConfig) -> None:
 
 
 def cli(argv: list[str] | None = None) -> None:
-    """The console script ``grt-blueteam``: a ``resume=`` is checked, and becomes the study's own command,
-    before Hydra starts (as ``grt-run`` does, :func:`grt.cli.run.cli`); ``sys.argv`` is left as it is."""
-    parser = get_args_parser()
-    args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
-    with exit_on_user_error():
-        if any("resume=" in arg for arg in args.overrides):
-            args.overrides = resume_overrides(args.overrides, STUDY)
-    run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
-                               config_name="blueteam"))
+    """The console script ``grt-blueteam``: a ``resume=`` becomes the folder's own command before Hydra starts."""
+    resumable_cli(main, "blueteam", STUDY, argv)
