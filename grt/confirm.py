@@ -24,7 +24,7 @@ import numpy as np
 import trimesh
 
 from grt.geometry.mesh import mesh_hash
-from grt.journal import Journal, JournalError
+from grt.journal import InOrder, Journal, JournalError
 from grt.metrics import score_interval
 
 ALPHA = 0.05
@@ -130,23 +130,21 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
             got[k] = rec
             if on_evaluated:
                 on_evaluated()
-    done: dict[int, dict] = {}
-    written = 0
+    def write(rec: dict) -> None:
+        got[missing[len(order.written)]] = rec
+        journal.append(rec)
+        if on_evaluated:
+            on_evaluated()
+
+    order = InOrder(write)
 
     def finish(j: int, result) -> None:
-        nonlocal written
         t, i, mesh = todo[missing[j]]
-        done[j] = {"iteration": t, "candidate": i, "score": float(result.score),
-                   "mesh_hash": mesh_hash(mesh.vertices, mesh.faces), "ci95": list(result.ci95(ci)),
-                   "outcomes": result.outcomes,
-                   "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
-                               "mode": o.mode} for o in result.trials]}
-        while written in done:
-            rec = got[missing[written]] = done.pop(written)
-            journal.append(rec)
-            written += 1
-            if on_evaluated:
-                on_evaluated()
+        order.done(j, {"iteration": t, "candidate": i, "score": float(result.score),
+                       "mesh_hash": mesh_hash(mesh.vertices, mesh.faces), "ci95": list(result.ci95(ci)),
+                       "outcomes": result.outcomes,
+                       "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
+                                   "mode": o.mode} for o in result.trials]})
 
     if missing:
         evaluator.evaluate_each([todo[k][2] for k in missing], seeds, finish)

@@ -23,6 +23,7 @@ import json
 import logging
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from grt.errors import UserError
@@ -191,3 +192,19 @@ class Journal:
 
     def __len__(self) -> int:
         return len(self.records)
+
+
+class InOrder:
+    """Records finished in any order, passed on in order: ``done(k, record)`` keeps record ``k`` until
+    records ``0..k-1`` are in, then hands each ready one to ``write`` (e.g. the journal's append and a
+    progress bar), so a journal's order never depends on which worker finished first."""
+
+    def __init__(self, write: Callable[[dict], None]):
+        self.write, self.written, self._ready = write, [], {}
+
+    def done(self, k: int, record: dict) -> None:
+        self._ready[k] = record
+        while len(self.written) in self._ready:
+            record = self._ready.pop(len(self.written))
+            self.write(record)
+            self.written.append(record)

@@ -17,7 +17,7 @@ import numpy as np
 import trimesh
 
 from grt.geometry.mesh import mesh_hash
-from grt.journal import Journal, JournalError
+from grt.journal import InOrder, Journal, JournalError
 from grt.optimizers.base import Optimizer
 from grt.optimizers.smoothness import project_to_budget, smoothness_score
 
@@ -157,17 +157,15 @@ class RedTeamLoop:
             start = time.perf_counter()
             validity = self.validity(self.deformer.mesh, mesh) if self.validity else {}
             checks.append((validity, time.perf_counter() - start))
-        done: dict[int, dict] = {}
-        written: list[dict] = []
+        def write(rec: dict) -> None:
+            self.journal.append(rec)
+            if self.on_candidate:
+                self.on_candidate(rec)
+
+        order = InOrder(write)
 
         def finish(k: int, result) -> None:
-            done[k] = self._record(t, *todo[k], *checks[k], result)
-            while len(written) < len(todo) and len(written) in done:
-                rec = done.pop(len(written))
-                self.journal.append(rec)
-                written.append(rec)
-                if self.on_candidate:
-                    self.on_candidate(rec)
+            order.done(k, self._record(t, *todo[k], *checks[k], result))
 
         # the nominal object is always scored; an implausible candidate is not simulated (NaN)
         sim = [k for k, (validity, _) in enumerate(checks) if validity.get("valid", True) or t == 0]
@@ -178,9 +176,9 @@ class RedTeamLoop:
             self.evaluator.evaluate_each([todo[k][2] for k in sim], self.seeds,
                                          lambda j, result: finish(sim[j], result))
             self.evaluations += len(sim)
-        if len(written) != len(todo):
-            raise RuntimeError(f"the evaluator returned {len(written)} of {len(todo)} candidates' results")
-        return written
+        if len(order.written) != len(todo):
+            raise RuntimeError(f"the evaluator returned {len(order.written)} of {len(todo)} candidates' results")
+        return order.written
 
     def _record(self, t: int, i: int, theta: np.ndarray, mesh: trimesh.Trimesh, validity: dict, check_s: float,
                 result) -> dict:
