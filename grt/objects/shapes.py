@@ -62,7 +62,9 @@ def resample(points: np.ndarray, spacing: float, segments: int, min_spacing: flo
     keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-12])
     pts = pts[keep]
     d = np.diff(pts, axis=0)
-    ang = np.degrees(np.arctan2(np.abs(np.cross(d[:-1], d[1:])), np.einsum("ij,ij->i", d[:-1], d[1:])))
+    # the z component of the 2-D cross product, written out: numpy 2.5 refuses np.cross on 2-D vectors
+    turn = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
+    ang = np.degrees(np.arctan2(np.abs(turn), np.einsum("ij,ij->i", d[:-1], d[1:])))
     cuts = [0, *(np.flatnonzero(ang > CORNER_DEG) + 1).tolist(), len(pts) - 1]
 
     def density(p: np.ndarray) -> np.ndarray:
