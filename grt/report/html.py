@@ -421,6 +421,9 @@ def _shapes_section(run: RunFolder, page: dict) -> str:
         fresh_txt = (f"; fresh episodes {score.fmt(c['score'], unit=True)}, Holm p = {c['p_holm']:.3g}"
                      if c else "")
         links = f"<a href='{esc(shape['file'])}'>{esc(Path(shape['file']).name)}</a> (printable STL, m)" if stl else ""
+        if shape.get("file_input_units") and (run.path / shape["file_input_units"]).is_file():
+            links += (f"; <a href='{esc(shape['file_input_units'])}'>{esc(Path(shape['file_input_units']).name)}</a> "
+                      f"(the input's units, {esc(shape.get('input_unit'))})")
         nominal_canvas = (f"<div class='card'><canvas class='grt-mesh' width='340' height='340' data-mesh='nominal' "
                           f"data-group='{key}'></canvas><div>nominal object "
                           "<a href='nominal.obj'>nominal.obj</a></div></div>") if nominal_key else ""
