@@ -457,4 +457,14 @@ def align_to_anchors(vertices: np.ndarray, anchors: np.ndarray, nominal_anchor_p
         ``(..., V, 3)`` aligned vertices.
     """
     R, t = procrustes(vertices[..., anchors, :], nominal_anchor_pos)
-    return vertices @ np.swapaxes(R, -1, -2) + t[..., None, :]
+    if vertices.ndim == 2:
+        return vertices @ R.T + t
+    # A population one mesh at a time into one array: the broadcast (N, V, 3) @ (N, 3, 3) product took
+    # 4-5 ms for ten meshes of 5k vertices where this takes ~1 ms (python -m grt.bench deform).
+    flat = vertices.reshape(-1, *vertices.shape[-2:])
+    rot, shift = R.reshape(-1, 3, 3), t.reshape(-1, 3)
+    out = np.empty(flat.shape)
+    for n in range(len(flat)):
+        np.matmul(flat[n], rot[n].T, out=out[n])
+        out[n] += shift[n]
+    return out.reshape(vertices.shape)
