@@ -337,7 +337,7 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     fmt = lambda v, f="{:.3f}": "-" if v is None or (isinstance(v, float) and v != v) else f.format(v)  # noqa: E731
     table.add_row(score.fmt(summary["s0"], unit=True), score.fmt(summary["best_score"], unit=True),
                   fmt(summary["final_drop"], "{:.1%}"),
-                  f"{summary['iter_at_50']}{'' if summary['reached_50'] else ' (not reached)'}",
+                  metrics.iter_at_50_label(summary["iter_at_50"], summary["reached_50"]),
                   fmt(summary["auc"]), fmt(summary["delta_complexity"]), str(summary["evaluations"]),
                   fmt(summary["wall_s"], "{:.0f}"))
     console = wide_console()  # in a log: as wide as the table and the paths (grt.console)
@@ -366,8 +366,6 @@ def print_summary(summary: dict, run_dir: Path) -> None:
         console.print("shape change vs nominal: " + "; ".join(
             f"rank {e['rank']}: volume {fmt(e['volume_change'], '{:+.1%}')}, max dihedral change "
             f"{fmt(e['max_dihedral_change_deg'], '{:.0f}')}°" for e in shapes))
-    if summary.get("tau_how"):
-        console.print(f"Smoothness-Score cap: {summary['tau_how']}")
     found = summary.get("crashshape_found", True)
     unit = next((e["input_unit"] for e in shapes if e.get("input_unit")), None)
     units = f" (meters; in the input's units too: rank*_{unit}.stl, see README.txt there)" if unit else " (meters)"

@@ -31,6 +31,7 @@ import numpy as np
 
 from grt.fileio import write_text_atomic
 from grt.journal import restore
+from grt.metrics import iter_at_50_label
 from grt.report.tables import ReportError, aggregate, collect
 from grt.scores import ScoreSpec
 
@@ -175,7 +176,7 @@ def headline(run: RunFolder, score: ScoreSpec) -> list[tuple[str, str, str, str,
             ("best", f(best), _interval(s.get("best_ci95"), f), unit, "lowest score the search found (rank-1 CrashShape)"),
             ("Final Drop", pct(s.get("final_drop")), _interval(drop_ci, pct), "% of S0",
              "1 - best / S0; interval: the best candidate's 95% interval with S0 fixed"),
-            ("Iter@50%", f"{s.get('iter_at_50', '-')}{'' if s.get('reached_50', True) else ' (not reached)'}",
+            ("Iter@50%", iter_at_50_label(s.get("iter_at_50"), s.get("reached_50", True)),
              "n/a", "iterations", "first iteration whose best-so-far drop reaches 50% (a point of the search)"),
             ("AUC", _num(s.get("auc")), "n/a", "drop x iterations (max T)", "area under the degradation curve (trapezoid rule)"),
             ("ΔComplexity", _num(s.get("delta_complexity")), "n/a", "entropy (nats)",
