@@ -448,6 +448,26 @@ def _legend_svg(vmax: float | None) -> str:
             f"text-anchor='end'>{vmax:.1f} mm</text></svg>")
 
 
+def mode_meanings(run: RunFolder) -> dict[str, str]:
+    """What each trial mode of the run's task means (one line each), from the task module's docstring
+    (:func:`grt.tasks.base.mode_meanings`): the same text a developer reads there."""
+    from grt.tasks.base import mode_meanings as meanings
+
+    task = _config(run).get("task") or {}
+    session = task.get("session") if isinstance(task, dict) else None
+    return meanings(session.get("_target_") if isinstance(session, dict) else None)
+
+
+def _meanings_html(modes, meanings: dict[str, str], colours: dict[str, str] | None = None) -> str:
+    """One line per mode shown: its swatch (with ``colours``), its name and what it means."""
+    lines = []
+    for m in sorted(modes, key=lambda m: (m != "success", m)):
+        swatch = f"<i class='sw' style='background:{colours[m]}'></i>" if colours and m in colours else ""
+        what = esc(meanings.get(m, "not described by the task's module"))
+        lines.append(f"<li>{swatch}<b class='{'' if m == 'success' else 'mode-bad'}'>{esc(m)}</b>: {what}</li>")
+    return f"<ul class='modes-meaning'>{''.join(lines)}</ul>"
+
+
 def _modes_section(run: RunFolder) -> str:
     """Per CrashShape: its trials' failure modes beside the nominal's, the seed of each trial."""
     s = run.summary or {}
@@ -464,15 +484,15 @@ def _modes_section(run: RunFolder) -> str:
     shapes = [(n, r) for n, r in shapes if r is not None]
     modes = {t.get("mode", "?") for r in [nominal] + [r for _, r in shapes] for t in r.get("trials", [])}
     colours = mode_colours(modes)
+    meanings = mode_meanings(run)
     rows = [("nominal", _counts(nominal))] + [(n, _counts(r)) for n, r in shapes]
-    out = ["<div class='legend'>" + "".join(f"<span><i class='sw' style='background:{colours[m]}'></i>{esc(m)}</span>"
-                                            for m in sorted(modes)) + "</div>", modes_svg(rows, colours)]
+    out = [modes_svg(rows, colours), _meanings_html(modes, meanings, colours)]
     # seeds: the same episodes for every candidate of the search (common random numbers)
     seeds = [t["seed"] for t in nominal.get("trials", [])]
     head = "".join(f"<th>{esc(n)}</th>" for n, _ in shapes)
     body = []
     for i, seed in enumerate(seeds):
-        cells = [_mode_cell(nominal, i)] + [_mode_cell(r, i) for _, r in shapes]
+        cells = [_mode_cell(nominal, i, meanings)] + [_mode_cell(r, i, meanings) for _, r in shapes]
         body.append(f"<tr><td>{seed}</td>{''.join(cells)}</tr>")
     out.append("<details><summary>every trial with its episode seed (replay one: python -m grt.replay RUN "
                "candidate=it&lt;t&gt;_c&lt;i&gt; seed=&lt;seed&gt;)</summary>"
@@ -492,12 +512,13 @@ def _counts(rec: dict) -> dict[str, int]:
     return counts or dict(rec.get("outcomes") or {})
 
 
-def _mode_cell(rec: dict, i: int) -> str:
+def _mode_cell(rec: dict, i: int, meanings: dict[str, str]) -> str:
     trials = rec.get("trials", [])
     if i >= len(trials):
         return "<td>-</td>"
     mode = trials[i].get("mode", "?")
-    return f"<td class='l{'' if mode == 'success' else ' mode-bad'}'>{esc(mode)}</td>"
+    return (f"<td class='l{'' if mode == 'success' else ' mode-bad'}' title='{esc(meanings.get(mode, ''))}'>"
+            f"{esc(mode)}</td>")
 
 
 def _videos_section(run: RunFolder) -> str:
@@ -511,6 +532,7 @@ def _videos_section(run: RunFolder) -> str:
     except ValueError:
         return "<p class='warn'>videos/videos.json is not readable: no videos shown.</p>"
     out = []
+    meanings = mode_meanings(run)
     if data.get("skipped"):
         out.append(f"<p class='warn'>No videos: {esc(data['skipped'])}</p>")
     for pair in data.get("pairs", []):
@@ -524,7 +546,8 @@ def _videos_section(run: RunFolder) -> str:
             src = f"data:{mime};base64,{base64.b64encode(path.read_bytes()).decode()}"
             cards.append(f"<div class='card'><video controls muted loop playsinline preload='auto' src='{src}'>"
                          f"</video><div>{esc(clip['label'])}: <b class='{'' if clip['mode'] == 'success' else 'mode-bad'}'>"
-                         f"{esc(clip['mode'])}</b> (journal: {esc(clip.get('journal_mode', '-'))})</div></div>")
+                         f"{esc(clip['mode'])}</b> (journal: {esc(clip.get('journal_mode', '-'))})</div>"
+                         f"<div class='note'>{esc(meanings.get(clip['mode'], ''))}</div></div>")
         out.append(f"<h3>{esc(pair['title'])}, episode seed {pair['seed']}</h3><div class='row'>{''.join(cards)}</div>")
     if data.get("camera"):
         out.append(f"<p class='note'>{esc(data['camera'])}</p>")
