@@ -183,6 +183,17 @@ def object_name(spec: str) -> str:
     return Path(text).stem if ("/" in text or "." in text) else text
 
 
+def object_folder(spec: str) -> str:
+    """The folder name of an object spec in run folders' paths: a built-in's name (``mug``), a mesh file's
+    name with its suffix (``mug.obj``; ``mug-file`` for a file without one), so the runs of a user's mesh
+    named like a built-in never land beside the built-in's."""
+    text = str(spec)
+    if not ("/" in text or "." in text):
+        return text
+    name = Path(text).name or text.strip("/").replace("/", "_")
+    return name if Path(name).suffix else f"{name}-file"
+
+
 _OMEGACONF_24 = tuple(int(p) for p in omegaconf.__version__.split(".")[:2]) >= (2, 4)
 
 
@@ -205,6 +216,7 @@ def register() -> None:
     cs = ConfigStore.instance()
     cs.store(group="budget", name="schema", node=BudgetSchema)
     add_resolver("object_name", object_name)
+    add_resolver("object_folder", object_folder)
     # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
     add_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
 

@@ -71,7 +71,7 @@ EVALUATOR_RESULTS = ("collision", "coacd", "max_hull_vertices")
 # FROM_COMMAND keys a run saved before they existed takes from the command all the same: they only choose
 # what is made after the search (report.html's videos), never a result.
 AFTER_SEARCH = ("budget.videos", "report")
-RUN_FOLDERS = "outputs/<task>/<object>/<selector>-<optimizer>/<time>"
+RUN_FOLDERS = "outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>"
 # Targets renamed since format 1: the evaluators package was ``grt.eval`` (the alias package is gone).
 RENAMED_TARGETS = {"grt.eval.evaluator.SimEvaluator": "grt.evaluators.sim.SimEvaluator"}
 # Keys a format-1 (or 0) config may lack, with the values such a run was made with.

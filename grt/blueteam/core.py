@@ -62,7 +62,7 @@ def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
     journal = run_dir / "journal.jsonl"
     if not is_run_folder(run_dir) or not journal.exists() or not (run_dir / "handles.json").exists():
         raise BlueTeamError(f"{run_dir} is not a red-team run folder (it needs {RUN_CONFIG}, handles.json and "
-                            "journal.jsonl): give run=outputs/<task>/<object>/<selector>-<optimizer>/<time>")
+                            "journal.jsonl): give run=outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>")
     return load_run_config(run_dir), Journal(journal).records
 
 

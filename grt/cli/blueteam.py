@@ -1,7 +1,7 @@
 """``python -m grt.blueteam run=<red-team run folder>`` (``grt-blueteam``): fine-tune the run's policy on
 its CrashShapes (paper Table 3); a Hydra app.
 
-    python -m grt.blueteam run=outputs/insertion/usb_plug/manual-topdm/<time>
+    python -m grt.blueteam run=outputs/insertion/usb_plug/insertion_state/manual-topdm/<time>
     python -m grt.blueteam resume=outputs/blueteam/<time>                      # continue a killed study
     python -m grt.blueteam resume=outputs/blueteam/<time> workers=8 blueteam.rered.enabled=false
     python -m grt.blueteam resume=outputs/blueteam/<time> blueteam.iterations=300 blueteam.val_patience=10

@@ -72,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"video: {result['video']} ({result['frames']} frames)")
         with open(args.run / "replays.jsonl", "a", encoding="utf-8") as f:
             f.write(json.dumps(result) + "\n")
+        print(f"recorded in {args.run / 'replays.jsonl'} (one line per replay: outcome, journal's outcome, video)")
         print(json.dumps({k: result[k] for k in ("candidate", "seed", "outcome", "journal_outcome", "match")}))
     return 0 if result["match"] else 1
 

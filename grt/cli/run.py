@@ -6,7 +6,7 @@ Examples::
     python -m grt.run object=bottle selector=all optimizer=cma_es budget=paper
     python -m grt.run -m selector=heuristic,all optimizer=topdm,gaussian budget=smoke
     python -m grt.run -m hydra/launcher=slurm experiment=table1_insertion   # the jobs on SLURM (docs/cluster.md)
-    python -m grt.run resume=outputs/grasp/mug/heuristic-topdm/2026-11-23_01-00-00
+    python -m grt.run resume=outputs/grasp/mug/antipodal/heuristic-topdm/2026-11-23_01-00-00
 
 ``main`` resolves the config once and calls :func:`grt.runner.run`, a plain function tests import; it
 returns the run's Final Drop so Hydra sweepers can optimize it.

@@ -62,12 +62,25 @@ def main(cfg: DictConfig) -> float:
             print(f"error: {found}" + (f" ({removed})" if removed else ""), file=sys.stderr)
             raise SystemExit(2) from None
     print(f"trained {result['iterations']} iterations ({result['steps']} steps) in {result['wall_s']:.0f} s; "
-          f"best training success {result['best_success']:.2f}; files in {out_dir}")
+          f"{training_success(result, cfg.train.get('patience'))}; files in {out_dir}")
     ev = result.get("evaluation")
     if ev:
         print(f"evaluation: {cfg.task.score} {ev['score']:.4g} (success {ev['success_rate']:.3f}) over "
               f"{ev['trials']} trials {ev['outcomes']}")
-    return float(result["best_success"])
+    best, last = result.get("best_success"), result.get("last_success")
+    return float(best if best is not None else last if last is not None else float("nan"))
+
+
+def training_success(result: dict, patience) -> str:
+    """The training's success in words: the best over ``train.patience`` iterations (``best.pt``'s), or, when
+    fewer iterations ran, the last ones' (never the -1 the best starts from)."""
+    best, last, window = result.get("best_success"), result.get("last_success"), result.get("last_window", 0)
+    if best is not None:
+        return f"best training success {best:.2f} (over {patience} iterations)"
+    if last is None:
+        return "no training episode ended, so no training success"
+    return (f"training success {last:.2f} over the last {window} iteration{'s' if window != 1 else ''} (no best: "
+            f"that needs train.patience={patience} iterations in a row)")
 
 
 def cli(argv: list[str] | None = None) -> None:

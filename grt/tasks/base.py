@@ -13,10 +13,16 @@ has the :data:`COMMON_MODES`:
 
 - ``success``: the task's success condition holds at the end of the trial.
 - ``sim_error``: the simulation itself failed (NaN state, object flying away, a physics exception).
+
+A task module's docstring explains its own modes as such a list; :func:`mode_meanings` reads them there, so
+``report.html`` explains each mode it shows from the one text a developer reads.
 """
 
 from __future__ import annotations
 
+import ast
+import importlib.util
+import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,6 +35,42 @@ from grt.errors import UserError
 SUCCESS, SIM_ERROR = "success", "sim_error"
 #: The trial modes of every task: its success condition held, or the simulation itself failed.
 COMMON_MODES = (SUCCESS, SIM_ERROR)
+
+
+_MODE_ITEM = re.compile(r"^- ``(\w+)``: (.*)$")
+
+
+def _docstring_items(module: str) -> dict[str, str]:
+    """The ``- ``mode``: text`` items of a module's docstring (read from its source, not imported: the task
+    modules import the simulator), each with its continuation lines, without the trailing ``;``/``.``."""
+    try:
+        spec = importlib.util.find_spec(module)
+        source = spec.loader.get_source(module) if spec is not None and spec.loader is not None else None
+        doc = ast.get_docstring(ast.parse(source)) if source else None
+    except (ImportError, ValueError, SyntaxError, AttributeError):
+        return {}
+    items: dict[str, str] = {}
+    current = None
+    for line in (doc or "").splitlines():
+        match = _MODE_ITEM.match(line)
+        if match:
+            current = match.group(1)
+            items[current] = match.group(2)
+        elif current and line.startswith("  ") and line.strip():
+            items[current] += " " + line.strip()
+        else:
+            current = None
+    return {k: v.replace("``", "").strip().rstrip(";.") for k, v in items.items()}
+
+
+def mode_meanings(session_target: str | None) -> dict[str, str]:
+    """What each trial mode of a task means, one line each: ``{mode: meaning}`` from the docstrings of the
+    session's module (``session_target``: ``task.session._target_``, e.g. ``grt.tasks.grasp.GraspSession``) and
+    of this module (the :data:`COMMON_MODES`); a mode the docstrings do not list is absent."""
+    meanings = _docstring_items(__name__)
+    if session_target and "." in str(session_target):
+        meanings.update(_docstring_items(str(session_target).rsplit(".", 1)[0]))
+    return meanings
 
 
 class TaskInputError(UserError):

@@ -16,7 +16,17 @@ An episode (the paper's protocol, appendix "Grasping Task"):
    ``dropped_lift``), shake 10 cm sideways and back (``dropped_shake``), and judge: object lifted
    and pinched by both fingers.
 
-Any NaN, runaway object or physics exception ends the trial as ``sim_error``.
+A trial is named (report.html shows these lines beside the modes, :func:`grt.tasks.base.mode_meanings`):
+
+- ``success``: after the shake the object is still lifted and pinched between both fingers;
+- ``no_grasp_found``: the policy planned no grasp on the object's point cloud;
+- ``unreachable``: no planned grasp could be reached: none of the first ``max_ik_candidates`` grasps (each
+  also turned 180 deg) had IK solutions for its via, pre-grasp, grasp, lift and shake poses, so the robot
+  never moved towards the object;
+- ``missed``: the fingers closed beside the object or lost it at once: it was not lifted;
+- ``dropped_lift``: the object was pinched when the fingers closed but slipped out during the lift;
+- ``dropped_shake``: the object was lifted but fell out of the fingers during the shake;
+- ``sim_error``: a physics failure (NaN state, runaway object, a physics exception).
 """
 
 from __future__ import annotations
