@@ -211,6 +211,11 @@ def test_a_policy_whose_sizes_do_not_fit_is_refused_naming_both():
         preflight(task_cfg("stack_cube"), {"_target_": "grt.policies.maniskill_experts.PushToGoalPolicy"},
                   trimesh.creation.box((0.04, 0.04, 0.04)).apply_translation([0, 0, 0.02]))
     check_policy_io(PushToGoalPolicy(), "push_cube", spec, 4)
+    from grt.tasks.maniskill.geometry import FrameError
+
+    with pytest.raises(FrameError, match="not in GRT's frame"):  # a user's mesh in the actor frame, before any run
+        preflight(task_cfg("push_cube"), {"_target_": "grt.policies.maniskill_experts.PushToGoalPolicy"},
+                  trimesh.creation.box((0.04, 0.04, 0.04)))
 
 
 def test_the_yamls_failure_flags_name_the_modes():
