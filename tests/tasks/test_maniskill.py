@@ -89,6 +89,14 @@ def test_a_new_candidate_reconfigures_and_a_rebuilding_env_scales_it_to_each_dra
             sizes.append(np.asarray(build.stock.extents))
             np.testing.assert_allclose(np.ptp(s.swap.hull(0), axis=0), sizes[-1], rtol=1e-6)
         assert not np.allclose(sizes[0], sizes[1])  # the env drew two pegs, the candidate followed each
+        longer = nominal(s)
+        longer.vertices[longer.vertices[:, 0] > longer.vertices[:, 0].max() - 1e-9, 0] += 0.01  # head 10 mm out
+        s.load_object(longer, [longer.vertices])
+        s.reset(1)
+        s.unwrapped.evaluate()  # the judge reads the candidate's head point, at this episode's scale
+        head = float(s.unwrapped.peg_head_offsets.p[0, 0])
+        assert head == pytest.approx(float(s.swap.hull(0)[:, 0].max()), abs=1e-6)
+        assert head > sizes[0][0] / 2 + 0.005
     finally:
         s.close()
 
@@ -122,6 +130,54 @@ def test_the_push_expert_and_a_users_class_push_the_nominal_cube_home(push):
 
     push.set_policy(Mine())
     assert push.run_trial(0).mode == "success"
+
+
+def test_stale_nominal_a_taller_cube_pushed_home_is_a_success(push):
+    """PushCube's success needs z < cube_half_size + 5 mm: a cube 1.3x taller about its centre, pushed into
+    the goal by the expert, lies on the table at z = 26 mm; the refresh judges it a success, the stock
+    number (20 mm) does not."""
+    tall = nominal(push)
+    tall.vertices[:, 2] = 0.02 + 1.3 * (tall.vertices[:, 2] - 0.02)
+    push.load_object(tall, [tall.vertices])
+    push.set_policy(PushToGoalPolicy())
+    assert push.run_trial(0).mode == "success"
+    refresh, push.swap.refresh = push.swap.refresh, None
+    try:
+        assert push.run_trial(0).mode == "timeout"
+    finally:
+        push.swap.refresh = refresh
+
+
+def test_stale_nominal_a_longer_peg_standing_upright_is_a_success():
+    """LiftPegUpright needs |z - peg_half_length| < 5 mm: a peg 1.2x longer, set upright on the table, rests
+    with its centre 24 mm higher than the stock peg's."""
+    from mani_skill.utils.structs.pose import Pose
+
+    s = make_session("lift_peg_upright")
+    try:
+        longer = nominal(s)
+        longer.vertices[:, 0] *= 1.2
+        s.load_object(longer, [longer.vertices])
+        judged = []
+        for refresh in (s.swap.refresh, None):
+            s.swap.refresh = refresh
+            s.reset(0)
+            peg = s.unwrapped.peg
+            upright = torch_pose([0.15, 0.25, 0.144 + 0.002], [0.5, -0.5, -0.5, -0.5])  # clear of the hand
+            peg.set_pose(Pose.create(upright))
+            for _ in range(10):
+                _, _, _, _, info = s.step(np.zeros(s.num_actions))
+            assert float(peg.pose.p[0, 2]) == pytest.approx(0.144, abs=0.002)  # standing on its end
+            judged.append(bool(info["success"]))
+        assert judged == [True, False]
+    finally:
+        s.close()
+
+
+def torch_pose(p, q):
+    import torch
+
+    return torch.tensor([[*p, *q]], dtype=torch.float32)
 
 
 def test_policy_remote_serves_the_expert_on_the_envs_own_state(push):
