@@ -180,6 +180,38 @@ def torch_pose(p, q):
     return torch.tensor([[*p, *q]], dtype=torch.float32)
 
 
+def test_a_policy_that_drives_the_env_itself_gets_the_candidate_and_is_judged_on_its_steps(push):
+    """The env-driver kind (ManiSkill's motion planners): the policy resets the env with the seed itself and
+    steps it; the candidate (a taller cube, lifted and refreshed inside the env's own reset) is in place."""
+    from grt.policies.base import EnvDriverPolicy, policy_kind
+
+    class Driver(EnvDriverPolicy):
+        def __init__(self, steps):
+            self.steps, self.heights = steps, []
+
+        def solve(self, env, seed):
+            obs, _ = env.reset(seed=seed)
+            self.heights.append(float(env.unwrapped.obj.pose.p[0, 2]))
+            expert = PushToGoalPolicy()
+            for _ in range(self.steps):
+                obs, _, _, _, info = env.step(expert.act({"state": np.asarray(obs)}))
+                if bool(info["success"][0]):
+                    return
+
+    assert policy_kind(Driver) == "env_driver"
+    tall = nominal(push)
+    tall.vertices[:, 2] = 0.02 + 1.3 * (tall.vertices[:, 2] - 0.02)
+    push.load_object(tall, [tall.vertices])
+    driver = Driver(50)
+    push.set_policy(driver)
+    done = push.run_trial(0)
+    assert done.mode == "success" and 0 < done.info["steps"] < 50
+    assert driver.heights == [pytest.approx(0.026, abs=1e-4)]  # settled inside the policy's own reset
+    push.set_policy(Driver(3))
+    assert push.run_trial(0).mode == "timeout"  # three steps do not push it home
+    push.set_policy(PushToGoalPolicy())
+
+
 def test_policy_remote_serves_the_expert_on_the_envs_own_state(push):
     from grt.policies.remote import connect
     from grt.policy_server import PolicyServer
