@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from grt.errors import UserError
@@ -306,10 +305,18 @@ def test_a_policy_whose_sizes_do_not_fit_is_refused_naming_both():
                   trimesh.creation.box((0.04, 0.04, 0.04)))
 
 
+def test_a_dict_observation_mode_gives_one_group_per_leaf():
+    s = make_session("push_cube", obs_mode="state_dict")
+    try:
+        assert s.obs_spec == {"agent/qpos": (9,), "agent/qvel": (9,), "extra/tcp_pose": (7,), "extra/goal_pos": (3,),
+                              "extra/obj_pose": (7,)}  # the 35 numbers of obs_mode=state, by name
+    finally:
+        s.close()
+
+
 def test_the_yamls_failure_flags_name_the_modes():
     from grt.tasks.maniskill.session import failure_modes
 
     assert failure_modes(["is_grasped", "is_obj_placed"]) == [("is_grasped", "not_grasped"),
                                                               ("is_obj_placed", "not_placed")]
     assert failure_modes({"is_robot_static": "moving"}) == [("is_robot_static", "moving")]
-    assert instantiate is not None
