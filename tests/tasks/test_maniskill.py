@@ -320,3 +320,14 @@ def test_the_yamls_failure_flags_name_the_modes():
     assert failure_modes(["is_grasped", "is_obj_placed"]) == [("is_grasped", "not_grasped"),
                                                               ("is_obj_placed", "not_placed")]
     assert failure_modes({"is_robot_static": "moving"}) == [("is_robot_static", "moving")]
+
+
+def test_object_actor_needs_a_maniskill_task(tmp_path):
+    from grt.tasks import task_object
+
+    assert task_object({"session": {}}, "mug", tmp_path) == "mug"  # any other object is passed through
+    with pytest.raises(TaskInputError, match="object=actor is the swapped actor of a ManiSkill task"):
+        task_object("grasp the object", "actor", tmp_path)  # grt.select's task is a sentence, not a task config
+    with pytest.raises(TaskInputError, match="task=insertion has no actor of its own"):
+        task_object({"name": "insertion", "session": {"_target_": "grt.tasks.insertion.InsertionSession"}}, "actor",
+                    tmp_path)
