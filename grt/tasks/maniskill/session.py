@@ -279,19 +279,31 @@ class ManiSkillSession(EpisodeSession):
     def _flag(self, info: dict, key: str):
         return np.asarray(_numpy(info[key])).reshape(-1)[0]
 
-    def _info(self, info: dict) -> dict:
-        """The trial's record of one step: success, the failure flags and the score key, as plain values."""
-        keys = {"success", *(f for f, _ in self.flags)}
+    def info_batch(self, info: dict) -> dict[str, np.ndarray]:
+        """What the judge reads of the env's info, batched: ``{key: (num_envs,)}`` for success, the failure
+        flags and the score key (bool or float arrays; the GPU evaluator judges every sub-scene from it).
+
+        Raises:
+            KeyError: a key the env's info does not have (names the keys it has).
+        """
+        keys = ["success", *(f for f, _ in self.flags)]
         if self.score_key != "success":
-            keys.add(self.score_key)
+            keys.append(self.score_key)
         out = {}
-        for key in keys:
+        for key in dict.fromkeys(keys):
             if key not in info:
                 raise KeyError(f"the env's info has no {key!r} (task.failure_flags / task.score); it has "
                                f"{', '.join(sorted(info))}")
-            value = self._flag(info, key)
-            out[key] = bool(value) if value.dtype == bool else float(value)
+            out[key] = np.asarray(_numpy(info[key])).reshape(self.unwrapped.num_envs, -1)[:, 0]
         return out
+
+    def judge_batch(self, success: np.ndarray, info: dict[str, np.ndarray]) -> list[str]:
+        """:meth:`judge` of every sub-scene: ``success`` ``(num_envs,)``, ``info`` from :meth:`info_batch`."""
+        return [self.judge(bool(success[i]), {k: v[i] for k, v in info.items()}) for i in range(len(success))]
+
+    def _info(self, info: dict) -> dict:
+        """The trial's record of one step (sub-scene 0): success, the failure flags and the score key."""
+        return {k: bool(v[0]) if v.dtype == bool else float(v[0]) for k, v in self.info_batch(info).items()}
 
     def _check(self, info: dict) -> None:
         super()._check(info)
