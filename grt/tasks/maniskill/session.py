@@ -173,7 +173,11 @@ class ManiSkillSession(EpisodeSession):
         with self.swap.active():
             self.env = gym.make(self.env_id, **kwargs)
         self.unwrapped = self.env.unwrapped
-        self._check_actor()
+        try:
+            self._check_actor()
+        except TaskInputError:
+            self.env.close()
+            raise
         self.swap.attach(self.unwrapped)
         self.frame = ActorFrame.of(self.swap.reference)
         from mani_skill.utils.registration import REGISTERED_ENVS
@@ -192,12 +196,17 @@ class ManiSkillSession(EpisodeSession):
     # ------------------------------------------------------------------ set-up checks
     def _check_actor(self) -> None:
         """Exactly one actor of the env matches ``actor`` (per sub-scene), or a one-line refusal."""
-        matched = self.swap.matched()
-        if len(matched) == 1:
+        builds = self.swap.builds
+        per_scene = {}  # sub-scene -> the matching actors built in it (peg_0, peg_1, ... on a GPU: one each)
+        for b in builds:
+            for i in b.scene_idxs:
+                per_scene.setdefault(i, []).append(b.name)
+        several = next((names for names in per_scene.values() if len(names) > 1), None)
+        if several:
+            raise TaskInputError(f"task.actor={self.actor} matches {len(several)} actors of {self.env_id} "
+                                 f"({', '.join(several)}): name one of them exactly")
+        if builds:
             return
-        if len(matched) > 1:
-            raise TaskInputError(f"task.actor={self.actor} matches {len(matched)} actors of {self.env_id} "
-                                 f"({', '.join(matched)}): name one of them exactly")
         for art_name, art in self.unwrapped.scene.articulations.items():
             links = [link.name for link in art.get_links()]
             hit = [n for n in [art_name, *links] if re.fullmatch(self.actor, n)]
