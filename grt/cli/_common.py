@@ -6,13 +6,20 @@ line with exit code 130 for Ctrl-C. Mistakes Hydra finds while it composes the c
 option, a value of the wrong type), before the app runs, are turned into the same one line by
 :func:`run_cli`, which each Hydra app's ``cli()`` calls.
 
-``CONF_DIR`` is the config folder the Hydra apps give ``@hydra.main``: an absolute path, because Hydra
-reads a relative ``config_path`` as a Python package (``pkg://conf``) whenever the app's function lives in
-an imported module, which it always does here (the ``python -m`` shims and console scripts import it).
+``CONF_DIR`` (:data:`grt.CONF_DIR`) is the config folder the Hydra apps give ``@hydra.main``: an absolute
+path (the repository's ``conf/`` in a checkout, ``grt/conf`` in an installed wheel), because Hydra reads a
+relative ``config_path`` as a Python package whenever the app's function lives in an imported module, which
+it always does here (the ``python -m`` shims and console scripts import it). A user's own config folder
+joins it with ``--config-dir DIR`` (Hydra's flag; docs/your-own-code.md): its groups' options show in
+``--help`` beside GRT's (:func:`config_groups`).
+
+Every ``--help`` starts with one line saying what the command does (:data:`ABOUT`, :func:`about_line`):
+the Hydra apps' through ``conf/hydra/help/grt.yaml``, the others' through :class:`AppParser`.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import os
@@ -23,27 +30,87 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hydra._internal.utils import _run_hydra, get_args_parser
-from hydra.errors import ConfigCompositionException, HydraException, OverrideParseException
+from hydra.errors import (
+    ConfigCompositionException,
+    HydraException,
+    OverrideParseException,
+    SearchPathException,
+)
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
+from grt import CONF_DIR
 from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resolvers too
 from grt.config import BudgetSchema, add_resolver, budget_hint, unknown_budget_key
 from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
 from grt.runfolder import resume_overrides  # also registers the resume_or resolver of hydra.run.dir
 
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
 _NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
 
 
 HIDDEN_GROUPS = ("paths",)  # config groups that are no user choice, left out of --help (with hydra/*)
 
+#: What each command does: the first line of its ``--help`` (:func:`about_line`).
+ABOUT = {
+    "run": "red-team a policy: search small deformations of an object (CrashShapes) that make it fail",
+    "evaluate": "score a policy on one object as it is (no deformation): its score and failure modes",
+    "select": "choose the handles and anchors a red-team run moves and keeps on an object, and show them",
+    "deform": "deform a mesh: move handle points, keep anchor points, write the smooth result",
+    "blueteam": "fine-tune a red-teamed policy on its CrashShapes and measure what it gained (paper Table 3)",
+    "train": "train a task's policy with PPO (rsl-rl)",
+    "serve": "serve a GRT policy over grt-policy/1, for a run in another process or on another machine",
+    "bench": "measure GRT's speed and accuracy against a baseline measured in the same run",
+    "report": "the paper's tables (and report.html) of a run, a sweep or an experiments/ folder",
+    "replay": "re-run one trial of a red-team run (a candidate's or the nominal object's), optionally filmed",
+    "objects": "list the built-in objects (size, faces, named regions), optionally export them",
+}
+
+
+def about_line(name: str) -> str:
+    """The first line of ``grt-<name> --help``: the command and what it does."""
+    return f"grt-{name} (python -m grt.{name}): {ABOUT[name]}"
+
+
+def running_about() -> str:
+    """:func:`about_line` of the running Hydra app (resolver ``grt_about``, ``conf/hydra/help/grt.yaml``)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    name = HydraConfig.get().job.name if HydraConfig.initialized() else ""
+    return about_line(name) if name in ABOUT else f"{name}: a GRT command"
+
+
+class AppParser(argparse.ArgumentParser):
+    """The argument parser of GRT's apps that do not use Hydra: ``--help`` starts with :func:`about_line`."""
+
+    def __init__(self, name: str, **kwargs):
+        super().__init__(prog=f"python -m grt.{name}", description=kwargs.pop("description", ABOUT[name]),
+                         **kwargs)
+        self.about = about_line(name)
+
+    def format_help(self) -> str:
+        return f"{self.about}\n\n{super().format_help()}"
+
+
+def group_options(group: str) -> list[str]:
+    """The options of config group ``group`` in every config folder of the running app's search path: GRT's
+    ``conf/`` and a user's ``--config-dir`` (YAML files; a schema registered in code is not an option)."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.object_type import ObjectType
+
+    if not GlobalHydra.instance().is_initialized():
+        return sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+    options: set[str] = set()
+    for source in GlobalHydra.instance().config_loader().get_sources():
+        if source.scheme() != "structured" and source.available() and source.is_group(group):
+            options.update(source.list(group, ObjectType.CONFIG))
+    return sorted(options)
+
 
 def config_groups() -> str:
     """The ``--help`` lines of the running app's config groups (resolver ``grt_config_groups``, used by
-    ``conf/hydra/help/grt.yaml``): each group this command composes, its options (the YAML files: a
-    schema registered in code is not an option) and the one chosen; ``paths`` and ``hydra/*`` are hidden."""
+    ``conf/hydra/help/grt.yaml``): each group this command composes, its options (:func:`group_options`,
+    a user's own among them) and the one chosen; ``paths`` and ``hydra/*`` are hidden."""
     from hydra.core.hydra_config import HydraConfig
 
     if not HydraConfig.initialized():
@@ -52,13 +119,14 @@ def config_groups() -> str:
     for group, chosen in sorted(HydraConfig.get().runtime.choices.items()):
         if group == "hydra" or group.startswith("hydra/") or group in HIDDEN_GROUPS:
             continue
-        options = sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+        options = group_options(group)
         if options:
             lines.append(f"{group}: {', '.join(options)}  (now: {chosen if chosen is not None else 'none'})")
     return "\n".join(lines)
 
 
 add_resolver("grt_config_groups", config_groups)
+add_resolver("grt_about", running_about)
 
 
 def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:
@@ -86,7 +154,7 @@ def exit_on_user_error(*also: type[BaseException]):
         print("interrupted (Ctrl-C)", file=sys.stderr)
         raise SystemExit(INTERRUPTED) from None
     except Exception as exc:
-        found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc)
+        found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc) or _search_path_error(exc)
         if found is None:
             raise
         print(f"error: {found}", file=sys.stderr)
@@ -223,6 +291,14 @@ def _launcher_error(exc: BaseException) -> UserError | None:
             return no_slurm("submitit_slurm")
         exc = exc.__cause__ or exc.__context__
     return None
+
+
+def _search_path_error(exc: BaseException) -> str | None:
+    """One line for a ``--config-dir DIR`` that is no folder (Hydra's ``SearchPathException``)."""
+    if not isinstance(exc, SearchPathException):
+        return None
+    return (f"--config-dir: {str(exc).replace('Additional config directory', 'the config folder')}; give the "
+            "folder that holds your config groups (policy/, task/, experiment/ ...)")
 
 
 def _setup_error(exc: OSError) -> OutputError | None:

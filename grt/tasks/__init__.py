@@ -15,11 +15,12 @@ from pathlib import Path
 from hydra.utils import get_class, get_object, instantiate
 from omegaconf import OmegaConf
 
+from grt import CONF_DIR
 from grt.objects import list_objects
 from grt.policies.base import POLICY_KINDS, policy_kind
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TaskSession, TrialOutcome
 
-TASK_CONF = Path(__file__).resolve().parents[2] / "conf" / "task"
+TASK_CONF = Path(CONF_DIR) / "task"  # the shipped tasks, in a checkout or an installed wheel
 POLICY_CONF = TASK_CONF.parent / "policy"
 
 
