@@ -43,7 +43,10 @@ from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resol
 from grt.config import BudgetSchema, add_resolver, budget_hint, unknown_budget_key
 from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
-from grt.runfolder import resume_overrides  # also registers the resume_or resolver of hydra.run.dir
+from grt.runfolder import (  # also registers the resume_or resolver of hydra.run.dir
+    discard_new,
+    resume_overrides,
+)
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
 _NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
@@ -147,7 +150,8 @@ def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = 
 @contextlib.contextmanager
 def exit_on_user_error(*also: type[BaseException]):
     """Turn a user error (or one of the types ``also``) into ``error: <message>`` on stderr and exit code 2,
-    Ctrl-C into one line and exit code 130."""
+    Ctrl-C into one line and exit code 130. Inside a Hydra app, a folder this command made and saved nothing
+    in is removed, and the line says so (:func:`grt.runfolder.discard_new`)."""
     try:
         yield
     except KeyboardInterrupt:
@@ -157,8 +161,22 @@ def exit_on_user_error(*also: type[BaseException]):
         found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc) or _search_path_error(exc)
         if found is None:
             raise
-        print(f"error: {found}", file=sys.stderr)
+        removed = _discard_run_folder()
+        print(f"error: {found}" + (f" ({removed})" if removed else ""), file=sys.stderr)
         raise SystemExit(2) from None
+
+
+def _discard_run_folder() -> str:
+    """:func:`grt.runfolder.discard_new` of the running Hydra app's folder (``""`` outside one)."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    try:
+        if not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.RUN:
+            return ""
+        return discard_new(Path(HydraConfig.get().runtime.output_dir))
+    except Exception:  # noqa: BLE001 - no folder of this run (yet): nothing to remove
+        return ""
 
 
 def stop_on_sigterm() -> None:
@@ -245,6 +263,9 @@ def _compose_error(exc: BaseException) -> str | None:
     if isinstance(cause, (ConfigKeyError, ConfigAttributeError)) and key.startswith("hydra.launcher."):
         return unknown_launcher_key(key, getattr(cause, "object_type", None))  # '+' would fail at launch
     text = one_line(str(exc))
+    if text.startswith("Multiple values for ") and "override" in text:  # +GROUP=OPTION of a chosen group
+        group = text.removeprefix("Multiple values for ").split(".")[0]
+        return f"{group} is a config group this command already chooses: give {group}=OPTION (without '+')"
     if isinstance(exc, OverrideParseException):
         return quoting_hint(exc.override, text)
     if isinstance(cause, OmegaConfBaseException):
@@ -321,6 +342,25 @@ def _setup_error(exc: OSError) -> OutputError | None:
                        "to: hydra.run.dir=PATH (hydra.sweep.dir=PATH with -m)")
 
 
+def recorded_config_dir(overrides: list[str]) -> str | None:
+    """The ``--config-dir`` the folder of ``resume=DIR`` was made with (Hydra's record of its config sources,
+    ``DIR/.hydra/hydra.yaml``), when that folder still exists; ``None`` otherwise."""
+    from omegaconf import OmegaConf
+
+    resume = next((line.partition("=")[2] for line in reversed(overrides) if line.startswith("resume=")), "")
+    record = Path(resume) / ".hydra" / "hydra.yaml" if resume else None
+    if record is None or not record.is_file():
+        return None
+    try:
+        sources = OmegaConf.select(OmegaConf.load(record), "hydra.runtime.config_sources") or []
+    except Exception:  # noqa: BLE001 - an unreadable record: the resume's own checks say so
+        return None
+    for source in sources:
+        if source.get("provider") == "command-line" and source.get("schema") == "file" and Path(source.path).is_dir():
+            return str(source.path)
+    return None
+
+
 def resumable_cli(main: Callable, config_name: str, kind, argv: list[str] | None = None) -> None:
     """Run the Hydra app ``main`` (config ``config_name``) from the command line, a ``resume=DIR`` first
     checked and made the folder's own command for its ``kind`` (:data:`grt.runfolder.TRAINING`, ``STUDY``)
@@ -330,5 +370,6 @@ def resumable_cli(main: Callable, config_name: str, kind, argv: list[str] | None
     with exit_on_user_error():
         if any("resume=" in arg for arg in args.overrides):
             args.overrides = resume_overrides(args.overrides, kind)
+            args.config_dir = args.config_dir or recorded_config_dir(args.overrides)  # the user's config folder
     run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
                                config_name=config_name))
