@@ -150,7 +150,7 @@ def build(node, key: str, **kwargs):
         found = _user_error(exc)
         if found is not None:
             raise found from exc
-        raise build_error(key, target, "building it", _root(exc)) from None
+        raise build_error(key, target, "building it", exc) from None
 
 
 def worker_error(key: str, target: str, trace: str, where: str = "an evaluator worker") -> ClassError:
@@ -195,10 +195,12 @@ def _parameters(obj) -> list[str] | None:
 
 def build_error(key: str, target: str, doing: str, exc: BaseException) -> ClassError:
     """One line for ``exc``, raised while ``doing`` something with the class of ``key``; the traceback goes to
-    a file (:func:`save_traceback`)."""
+    a file (:func:`save_traceback`). Hydra's ``InstantiationException`` is looked through: the line names the
+    constructor's own error."""
     text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
     path = save_traceback(text, target.rsplit(".", 1)[-1])
-    return ClassError(f"{describe(key, target)}: {doing} raised {type(exc).__name__}: {_first_line(str(exc))} "
+    root = _root(exc)
+    return ClassError(f"{describe(key, target)}: {doing} raised {type(root).__name__}: {_first_line(str(root))} "
                       f"(the whole traceback: {path})")
 
 
