@@ -2,7 +2,7 @@
 and cheap commands: a process start costs seconds here, and a refusal is decided before any simulation.
 
 :func:`app` restores what an app changes in its process (``sys.argv``, Hydra's global state, the root
-logger's handlers, the SIGTERM handler, ``logging.raiseExceptions``) and returns its exit code, stdout and
+logger's handlers, the SIGTERM handler, ``logging.raiseExceptions``, Hydra's config of the app) and returns its exit code, stdout and
 stderr. :func:`user_project` writes a user's project: a package of their own classes (``mypkg``) and a config
 folder (``conf/``) with their policy, selector and experiment, as docs/your-own-code.md lays it out.
 """
@@ -17,6 +17,7 @@ import textwrap
 from pathlib import Path
 
 from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -42,6 +43,7 @@ def app(name: str, *argv: str, capsys) -> tuple[int, str, str]:
         sys.argv, root.level, logging.raiseExceptions = saved[0], saved[2], saved[4]
         signal.signal(signal.SIGTERM, saved[3])
         GlobalHydra.instance().clear()
+        HydraConfig.instance().cfg = None  # the app's config, which resolvers (${hydra:...}) would read later
     out = capsys.readouterr()
     return code, out.out, out.err
 
