@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from grt.config import plain
@@ -36,6 +35,7 @@ from grt.redteam import RedTeamLoop, episode_seeds
 from grt.runfolder import locked, refuse_unless_run, save_run_config, without_secrets
 from grt.scores import ScoreSpec, check_nominal_floor, crash_margin, nominal_floor
 from grt.selectors.base import HandleSet
+from grt.targets import build
 from grt.tasks import preflight, task_object
 
 log = logging.getLogger("grt.run")
@@ -62,30 +62,33 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
     check_object_size(mesh)  # a mesh in millimetres: refused before any file
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # wrong plug, policy kind or checkpoint: likewise
-    save_run_config(cfg, run_dir)
-    handle_set = _select_handles(cfg, mesh, run_dir)
-    save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
-    deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, **deformer_options(cfg.deformer))
-    _announce_deformer(deformer)
-    tau, how = run_tau(cfg, mesh)
-    print(f"Smoothness-Score cap: {how}", flush=True)
-    optimizer = instantiate(cfg.optimizer)(num_handles=len(handle_set.handles))
-    seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
+    # the user's classes are built before the run's record is saved: one that cannot be built is one line and
+    # leaves no folder (grt.targets.build); the workers build the task's session as they start
+    selector = None if (run_dir / "handles.json").exists() else build(cfg.selector, "selector")
+    logger = build(cfg.logger, "logger")
+    evaluator = build(cfg.evaluator, "evaluator", task=plain(cfg.task), policy=plain(cfg.policy), nominal=mesh,
+                      progress=False)  # the red-team bar shows progress
     journal = Journal(run_dir / "journal.jsonl")
-    if journal.recovered_truncated_line:
-        log.warning("journal: ignored a truncated last line (an interrupted write)")
-    if len(journal):
-        log.info("resuming %s: %d candidates already in the journal", run_dir, len(journal))
-    logger = instantiate(cfg.logger)
-    evaluator = instantiate(cfg.evaluator)(task=plain(cfg.task), policy=plain(cfg.policy), nominal=mesh,
-                                           progress=False)  # the red-team bar shows progress
     total = 1 + cfg.budget.population * cfg.budget.iterations
-    folding = FoldingWatch(journal, len(handle_set.handles), cfg.budget.sigma)
     bar = None
     try:
-        logger.start(run_dir, name=run_dir.name, config=without_secrets(cfg))
         if len(journal) < total and hasattr(evaluator, "start"):
             evaluator.start()  # one line, then the workers' start-up, outside the bar's rate and ETA
+        save_run_config(cfg, run_dir)
+        handle_set = _select_handles(cfg, mesh, run_dir, selector)
+        save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
+        deformer = ShapeDeformer(mesh, handle_set.handles, handle_set.anchors, **deformer_options(cfg.deformer))
+        _announce_deformer(deformer)
+        tau, how = run_tau(cfg, mesh)
+        print(f"Smoothness-Score cap: {how}", flush=True)
+        optimizer = build(cfg.optimizer, "optimizer", num_handles=len(handle_set.handles))
+        seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
+        if journal.recovered_truncated_line:
+            log.warning("journal: ignored a truncated last line (an interrupted write)")
+        if len(journal):
+            log.info("resuming %s: %d candidates already in the journal", run_dir, len(journal))
+        folding = FoldingWatch(journal, len(handle_set.handles), cfg.budget.sigma)
+        logger.start(run_dir, name=run_dir.name, config=without_secrets(cfg))
         bar = progress(total, "red-team", "cand", initial=len(journal))
         loop = RedTeamLoop(
             deformer, optimizer, evaluator, journal, seeds, cfg.budget.iterations, tau=tau,
@@ -185,12 +188,11 @@ def _confirm(cfg: DictConfig, run_dir: Path, result, deformer: ShapeDeformer, ev
                        ci=score.ci, on_evaluated=lambda: bar.update(1))
 
 
-def _select_handles(cfg: DictConfig, mesh, run_dir: Path) -> HandleSet:
+def _select_handles(cfg: DictConfig, mesh, run_dir: Path, selector) -> HandleSet:
     """Handles and anchors: from the run folder when resuming, else from the configured selector."""
     path = run_dir / "handles.json"
     if path.exists():
         return HandleSet.from_json(path.read_text())
-    selector = instantiate(cfg.selector)
     handle_set = selector.select(mesh, cfg.task.description)
     write_text_atomic(path, handle_set.to_json())  # a kill mid-write must not leave a half file to resume from
     return handle_set

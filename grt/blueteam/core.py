@@ -30,6 +30,7 @@ from grt.geometry.prepare import MeshSettings
 from grt.outputs import crash_records
 from grt.scores import ScoreSpec
 from grt.selectors.base import HandleSet
+from grt.targets import build
 from grt.tasks import task_object
 
 log = logging.getLogger(__name__)
@@ -92,9 +93,7 @@ def make_evaluator(cfg: DictConfig, task: dict, policy: dict, progress: bool = T
         task, policy: the red-team run's task and policy configs (plain).
         progress: show a progress bar per evaluation.
     """
-    from hydra.utils import instantiate
-
-    return instantiate(cfg.evaluator)(task=task, policy=policy, collision="coacd", progress=progress)
+    return build(cfg.evaluator, "evaluator", task=task, policy=policy, collision="coacd", progress=progress)
 
 
 def trainable_checkpoint(policy_cfg: dict) -> str:

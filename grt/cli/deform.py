@@ -19,14 +19,13 @@ has none within half an edge, or two indices that land on one vertex, is refused
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from grt.cli._common import exit_on_user_error, write_output
+from grt.cli._common import AppParser, exit_on_user_error, write_output
 from grt.errors import UserError, check_output_file
 from grt.geometry.deform import METHODS, JacobianFieldDeformer, check_indices
 from grt.geometry.indices import IndexMapError, carry_indices, file_vertices
@@ -107,7 +106,7 @@ def deform_to_targets(mesh: trimesh.Trimesh, handles: np.ndarray, handle_pos: np
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m grt.deform", description=__doc__.split("\n\n")[0])
+    ap = AppParser("deform", description=__doc__.split("\n\n")[0])
     ap.add_argument("mesh", help="mesh file (OBJ/STL/PLY/GLB/OFF) or built-in object name")
     ap.add_argument("--handles", required=True, help="file of 'index x y z' handle targets")
     ap.add_argument("--anchors", required=True, help="file of 'index x y z' anchor targets")

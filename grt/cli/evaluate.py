@@ -24,7 +24,6 @@ import hydra
 import numpy as np
 import trimesh
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
@@ -35,6 +34,7 @@ from grt.geometry.prepare import MeshSettings
 from grt.geometry.prepare import describe as describe_preparation
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
+from grt.targets import build
 from grt.tasks import preflight, task_object
 
 log = logging.getLogger(__name__)
@@ -57,13 +57,13 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None
-    make = instantiate(cfg.evaluator)
     start = time.perf_counter()
     parts, parts_dir = saved_parts(cfg.object, cfg.get("parts", "auto"), scale)
     if parts_dir is not None:
         print(f"collision     the {len(parts)} convex parts the red-team run simulated this shape with "
               f"({parts_dir}); parts=decompose runs CoACD on the file instead", flush=True)
-    with make(task=plain(cfg.task), policy=plain(cfg.policy), nominal=mesh, render_dir=render_dir) as ev:
+    with build(cfg.evaluator, "evaluator", task=plain(cfg.task), policy=plain(cfg.policy), nominal=mesh,
+               render_dir=render_dir) as ev:
         startup = ev.start() if hasattr(ev, "start") else 0.0  # one line before the silent start-up
         begin = time.perf_counter()
         # the base Evaluator interface takes meshes and seeds; the simulator's also takes known parts

@@ -3,15 +3,15 @@ faces), optionally export them."""
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
+from grt.cli._common import AppParser
 from grt.objects import get_object, list_objects, object_regions, object_task
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m grt.objects", description=__doc__)
+    ap = AppParser("objects", description=__doc__)
     ap.add_argument("--export", metavar="DIR", help="write every object as DIR/<name>.obj (meters)")
     args = ap.parse_args(argv)
     print(f"{'name':14s} {'task':10s} {'size x y z (m)':24s} {'faces':>6s} {'build':>7s}  regions")

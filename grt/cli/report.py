@@ -10,16 +10,24 @@ page), ``--update-readmes`` rewrites the generated table blocks of every ``READM
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
-from grt.cli._common import exit_on_user_error, write_output
+from grt.cli._common import AppParser, exit_on_user_error, write_output
 from grt.errors import check_output_file
-from grt.report.tables import ReportError, aggregate, collect, csv_text, markdown, render, update_readmes
+from grt.report.tables import (
+    ReportError,
+    aggregate,
+    collect,
+    csv_text,
+    markdown,
+    render,
+    unfinished,
+    update_readmes,
+)
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m grt.report", description=__doc__.splitlines()[0])
+    ap = AppParser("report", description=__doc__.splitlines()[0])
     ap.add_argument("path", type=Path, help="a run folder, a multirun folder or an experiments/ folder")
     ap.add_argument("--csv", type=Path, help="also write the per-run rows as CSV (into an existing folder)")
     ap.add_argument("--markdown", action="store_true",
@@ -48,10 +56,11 @@ def main(argv: list[str] | None = None) -> None:
             rows = collect(args.path)[0] if args.csv else []
         else:
             rows, failed = collect(args.path)
-            if not rows and not failed:
+            waiting = unfinished(args.path)  # a sweep's jobs that never wrote summary.json
+            if not rows and not failed and not waiting:
                 raise ReportError(f"no summary.json (or summary_<name>.json) under {args.path}: is it a finished "
                                   "GRT run folder?")
-            print(markdown(rows, aggregate(rows), failed))
+            print(markdown(rows, aggregate(rows), failed, waiting))
         if args.csv:
             write_output(args.csv, csv_text(rows), "--csv PATH")
             print(f"\nwrote {args.csv}")

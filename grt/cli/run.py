@@ -23,7 +23,9 @@ writes into it (:class:`grt.runfolder.RunFolderCallback`): a second process in i
 first's PID, and a new run never overwrites a run's record. A full disk or a folder that cannot be written
 mid-run is one line naming the disk and the command that continues the run (exit code 1). A sweep's job
 that fails writes ``error.txt`` in its folder (with the command that continues it, if it had begun) and the
-sweep goes on; under the submitit launcher (``hydra/launcher=slurm``, :mod:`grt.cli.launchers`) a job that
+sweep goes on, and the sweep's command ends with one line on stderr naming the jobs that failed or never
+finished, exit code 1 (:mod:`grt.cli.sweeps`; a sweep prints its folder when it starts and ends); under the
+submitit launcher (``hydra/launcher=slurm``, :mod:`grt.cli.launchers`) a job that
 died without a result (killed, out of time or memory) ends the sweep's command with one line naming it.
 """
 
@@ -41,8 +43,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
+from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, recorded_config_dir, run_cli
 from grt.cli.launchers import check_launcher, unfinished_job
+from grt.cli.sweeps import STARTED, sweep_end
 from grt.config import validate
 from grt.errors import INTERRUPTED, TERMINATED, Terminated
 from grt.runfolder import (
@@ -116,8 +119,10 @@ def cli(argv: list[str] | None = None) -> None:
             check_launcher(args.overrides)
         if any("resume=" in arg for arg in args.overrides):
             args.overrides = resume_overrides(args.overrides)
+            args.config_dir = args.config_dir or recorded_config_dir(args.overrides)  # the user's config folder
 
     def launch() -> None:
+        started = len(STARTED)
         try:
             _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR, config_name="run")
         except Exception as exc:
@@ -126,5 +131,9 @@ def cli(argv: list[str] | None = None) -> None:
                 raise
             _say(f"error: {line}")
             raise SystemExit(1) from None
+        if len(STARTED) > started:  # a sweep ran: its folder, its jobs, and exit code 1 when some failed
+            code = sweep_end(STARTED[-1])
+            if code:
+                raise SystemExit(code)
 
     run_cli(launch)

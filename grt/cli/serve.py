@@ -16,14 +16,14 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 import grt
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
-from grt.config import plain
+from grt.config import plain, validate
 from grt.policies.base import BatchedPolicy, GraspObservation, GraspPolicy, PolicyServerError
 from grt.policy_server import PolicyServer
+from grt.targets import build
 from grt.tasks import session_class
 
 log = logging.getLogger("grt.serve")
@@ -38,7 +38,7 @@ def make_server(cfg: DictConfig) -> PolicyServer:
     task = plain(cfg.task)
     session = session_class(task)
     task_name = getattr(session, "task_name", "") or task["name"]
-    policy = instantiate(cfg.policy)
+    policy = build(cfg.policy, "policy")
     if "torch" in sys.modules and cfg.serve.threads:
         sys.modules["torch"].set_num_threads(int(cfg.serve.threads))
     choice = HydraConfig.get().runtime.choices.get("policy", "policy") if HydraConfig.initialized() else "policy"
@@ -87,6 +87,7 @@ def _version(policy_cfg: DictConfig) -> str:
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: print the URL, then serve until Ctrl-C."""
     with exit_on_user_error():
+        validate(cfg, classes=("policy", "task.session"))
         server = make_server(cfg)
     print(server.url, flush=True)
     info = server.info

@@ -35,24 +35,30 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-import grt.config  # noqa: F401 - registers schemas and resolvers
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
+from grt.config import validate  # also registers schemas and resolvers
 from grt.runfolder import TRAINING, ResumeError, discard_new, resume_or
 
 
 @hydra.main(config_path=CONF_DIR, config_name="train_policy", version_base="1.3")
 def main(cfg: DictConfig) -> float:
-    from grt.rl.policy_training import resumed_config, train_policy  # torch: not for a refused command
-
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with exit_on_user_error():
         try:
+            if not cfg.resume:
+                validate(cfg)  # every class imports and takes its keys, nothing unread: before any file or torch
+            from grt.rl.policy_training import (  # torch: not for a refused command
+                resumed_config,
+                train_policy,
+            )
+
             if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
                 resume = Path(resume_or(cfg.resume, ""))
                 if resume.resolve() != out_dir.resolve():
                     raise ResumeError(f"resume={cfg.resume} with hydra.run.dir={out_dir}: a training goes on in its "
                                       f"own folder; give resume={cfg.resume} alone")
                 cfg = resumed_config(cfg, out_dir)
+                validate(cfg)  # the training's own config: its classes must still import
             result = train_policy(cfg, out_dir)
         except Exception as exc:
             found = find_user_error(exc)

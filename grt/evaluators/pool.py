@@ -39,6 +39,7 @@ import trimesh
 
 from grt.evaluators.base import SIM_ERROR
 from grt.policies.base import PolicyInterrupted, PolicyServerError, PolicyUnavailable
+from grt.targets import worker_error
 from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)
@@ -388,7 +389,7 @@ class WorkerPool:
         """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order.
 
         Raises:
-            RuntimeError: a worker cannot build its session (config or import error).
+            grt.targets.ClassError: a worker cannot build its session (one line; the traceback in a file).
         """
         self.start()
         pending, crashes = deque(jobs), {}
@@ -406,7 +407,7 @@ class WorkerPool:
         clock should not count).
 
         Raises:
-            RuntimeError: a worker cannot build its task session.
+            grt.targets.ClassError: a worker cannot build its task session (one line; the traceback in a file).
         """
         self.start()
         while not all(w.ready for w in self.workers):
@@ -457,7 +458,7 @@ class WorkerPool:
         w.last_message = time.monotonic()
         if kind == "fatal":
             self.close()
-            raise RuntimeError(f"an evaluator worker could not build its task session:\n{payload}")
+            raise worker_error("task.session", str(self.task["session"].get("_target_")), payload)
         if kind == "unavailable":
             self.close()
             raise PolicyServerError(f"{payload}; the evaluation stopped (nothing of its unfinished trials "

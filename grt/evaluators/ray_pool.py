@@ -42,6 +42,7 @@ from grt.errors import UserError
 from grt.evaluators.pool import THREAD_VARIABLES, Job, blame_first_seed, worker_limits
 from grt.evaluators.sim import SimEvaluator
 from grt.policies.base import PolicyServerError
+from grt.targets import worker_error
 from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)
@@ -394,7 +395,8 @@ class RayPool:
         if status == "unavailable":
             raise PolicyServerError(f"{report.get('error')}; the evaluation stopped (nothing of its unfinished trials "
                                     "was recorded)")
-        raise RuntimeError(f"an evaluator actor on {where} could not build its task session:\n{report.get('error')}")
+        raise worker_error("task.session", str(self.task["session"].get("_target_")), str(report.get("error")),
+                           f"an evaluator actor on {where}")
 
     def _answer(self, a: _Actor, what, answer, on_trial) -> None:
         if what == "load":

@@ -12,14 +12,16 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from hydra.utils import get_class, get_object, instantiate
+from hydra.utils import get_class, get_object
 from omegaconf import OmegaConf
 
+from grt import CONF_DIR
 from grt.objects import list_objects
 from grt.policies.base import POLICY_KINDS, policy_kind
+from grt.targets import build, locate
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TaskSession, TrialOutcome
 
-TASK_CONF = Path(__file__).resolve().parents[2] / "conf" / "task"
+TASK_CONF = Path(CONF_DIR) / "task"  # the shipped tasks, in a checkout or an installed wheel
 POLICY_CONF = TASK_CONF.parent / "policy"
 
 
@@ -113,10 +115,10 @@ def fitting_policies(task_name: str, kinds: tuple[str, ...], folder: Path = POLI
 def _policy_class(policy) -> tuple[type | None, object]:
     """``(class, instance)`` of a policy given as an instance or as a config with ``_target_`` (not built)."""
     if isinstance(policy, Mapping) and "_target_" in policy:
-        target = get_object(str(policy["_target_"]))
+        target = locate(str(policy["_target_"]), "policy")  # a class Python cannot find: one line
         if isinstance(target, type):
             return target, None
-        built = instantiate(policy)  # a factory (policy=remote's connect): its product has the class
+        built = build(policy, "policy")  # a factory (policy=remote's connect): its product has the class
         return type(built), built
     return (type(policy), policy) if policy is not None else (None, None)
 
@@ -158,7 +160,7 @@ def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:
     session = session_class(task)  # a variant YAML (grasp_2cam) names the same class
     session.check_object(mesh, **{k: v for k, v in task["session"].items() if k != "_target_"})
     if built is None and cls is not None:
-        built = instantiate(policy)
+        built = build(policy, "policy")  # a constructor that raises: one line, its traceback in a file
     check = getattr(built, "check", None)
     probe = getattr(session, "probe_policies", False) and built is not None and policy_kind(type(built)) == "closed_loop"
     if check is None and not probe:
