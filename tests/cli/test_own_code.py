@@ -64,13 +64,13 @@ def test_a_users_sweep_from_their_own_folder_with_their_configs_and_classes(proj
     proc = subprocess.run([sys.executable, "-m", "grt.run", "--config-dir", "conf", "-m", "experiment=mine",
                            "selector=corners,broken", "+task.ci=wilson", f"hydra.sweep.dir={sweep}"],
                           cwd=project, env=env, capture_output=True, text=True, timeout=300)
-    ok, failed = sweep / "0_corners-topdm", sweep / "1_broken-topdm"
+    ok, failed = sweep / "0_planner_corners-topdm", sweep / "1_planner_broken-topdm"
     assert proc.returncode == 1, proc.stdout[-3000:] + proc.stderr[-3000:]
     lines = proc.stdout.strip().splitlines()
     assert lines[0] == f"sweep folder: {sweep}" and lines[-1].startswith(f"sweep folder: {sweep} (2 jobs; ")
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]  # (the bars are on stderr)
     assert "Traceback" not in proc.stderr and errors == [
-        f"error: 1 of 2 jobs of the sweep failed: 1_broken-topdm (error: {failed / 'error.txt'}); python -m "
+        f"error: 1 of 2 jobs of the sweep failed: 1_planner_broken-topdm (error: {failed / 'error.txt'}); python -m "
         f"grt.report {sweep} lists them"], proc.stderr[-3000:]
     summary = json.loads((ok / "summary.json").read_text())
     assert summary["evaluations"] == 7 and summary["ci"] == "wilson"  # +task.ci: a key GRT reads, accepted
@@ -91,7 +91,9 @@ def test_a_users_sweep_from_their_own_folder_with_their_configs_and_classes(proj
 def test_help_lists_the_users_options_beside_grts(project, capsys):
     code, out, _ = app("run", "--config-dir", str(project / "conf"), "--help", capsys=capsys)
     assert code == 0
-    assert "policy: antipodal, broken, contact_graspnet, drawer_expert" in out and ", planner, remote  (now: " in out
+    policy = next(line for line in out.splitlines() if line.startswith("policy: "))
+    options = policy.removeprefix("policy: ").split("  (now: ")[0].split(", ")
+    assert options == sorted(options) and {"antipodal", "broken", "planner", "remote"} <= set(options)
     assert "selector: all, broken, corners, heuristic, manual, vlm" in out
     assert "experiment: mine, table1_drawer" in out
     code, _, err = app("run", "--config-dir", str(project / "nowhere"), "--help", capsys=capsys)
