@@ -474,14 +474,18 @@ def resume_overrides(overrides: list[str], kind: Resumable = RUN) -> list[str]:
         ``overrides`` unchanged without ``resume=``.
 
     Raises:
-        ResumeError: DIR is missing or not a run (of ``kind``), or an override would change the run (names
-            the keys).
+        ResumeError: DIR is missing or not a run (of ``kind``), empty (``resume=`` of an unset shell variable;
+            ``resume=null`` is no resume), or an override would change the run (names the keys).
     """
     try:
         given = OverridesParser.create().parse_overrides(overrides)
     except HydraException:
         return overrides  # Hydra reports a malformed override itself
     resume = [o for o in given if o.key_or_group == "resume"]
+    if resume and isinstance(resume[-1].value(), str) and not resume[-1].value().strip():
+        raise ResumeError(f"{resume[-1].input_line.strip()!r}: resume= is empty (an unset shell variable?), and a "
+                          f"new {kind.noun} is not what resume= asks for: give the folder to continue "
+                          f"(resume=DIR), or leave resume= out to start a new {kind.noun}")
     if not resume or not resume[-1].value():
         return overrides
     run_dir = resume[-1].value()

@@ -52,3 +52,19 @@ def test_deform_never_writes_over_its_input_and_asks_before_replacing_a_file(tmp
     assert snapshot(tmp_path) == before  # not a byte changed
     assert deform_cli.main([str(mesh), *targets, "--out", str(tmp_path / "mine.obj"), "--overwrite"]) == 0
     assert len(trimesh.load(tmp_path / "mine.obj", process=False).vertices) == len(get_object("can").vertices)
+
+
+# ------------------------------------------------------------------------------------------------ resume=
+
+@pytest.mark.parametrize("app", ["run", "train", "blueteam"])
+def test_an_empty_resume_is_refused_not_a_new_run(app, tmp_path, capsys, monkeypatch):
+    """``resume=$RUN`` with ``RUN`` unset reaches the app as ``resume=``: refused before Hydra starts (nothing
+    written), not taken for a new run."""
+    import importlib
+
+    monkeypatch.chdir(tmp_path)
+    cli = importlib.import_module(f"grt.cli.{app}").cli
+    code, err = _in_process(cli, ["resume=", f"hydra.run.dir={tmp_path / 'new'}"], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith("error: 'resume=': resume= is empty (an unset shell variable?)") and "resume=DIR" in err
+    assert list(tmp_path.iterdir()) == []
