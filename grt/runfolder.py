@@ -625,6 +625,15 @@ class FolderBusyError(UserError):
     """Another process holds the run folder's lock."""
 
 
+class FolderNotEmptyError(UserError):
+    """A new run (of any GRT app) given a folder that already holds files: the user's, or another command's."""
+
+
+# What Hydra writes when an app starts (besides ``<app>.log``): a folder holding only these and the log is a
+# start that was killed before it saved anything, which a new start may take over.
+HYDRA_RECORD = {"config.yaml", "hydra.yaml", "overrides.yaml"}
+
+
 _held: dict[Path, int] = {}  # run folder (resolved) -> this process's locked file descriptor of its LOCK
 _claimed: dict[Path, tuple[Path | None, set[str], set[str]]] = {}  # run folder -> (first folder made for it,
 # what the folder held before this command, the names of Hydra's files)
@@ -704,13 +713,16 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
     into it.
 
     Refuses a new run in a folder that holds a red-team run (its record would be rewritten and two runs'
-    journals mixed; or, for another app, the run's files overwritten by its own) and a folder another
-    process runs in; notes what this command makes, so that a run refused before it saved anything leaves
-    nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's log file (``<app>.log``).
+    journals mixed; or, for another app, the run's files overwritten by its own), a new run in any other
+    folder that is not empty (:func:`check_new_folder`: the user's own files, or another command's), and a
+    folder another process runs in; notes what this command makes, so that a run refused before it saved
+    anything leaves nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's log file
+    (``<app>.log``).
 
     Raises:
         ResumeError: a new run (no ``resume=``) in a red-team run's folder, or another app's command (resumed
             or not) there: only ``grt.run`` continues a red-team run.
+        FolderNotEmptyError: a new run in a folder that holds other files.
         FolderBusyError: another process holds the folder's lock.
         OutputError: the folder cannot be made or written.
     """
@@ -733,7 +745,36 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
                               "its own (hydra.run.dir=PATH, or leave it out for a new one)")
         raise ResumeError(f"hydra.run.dir={run_dir} already holds a run ({RUN_CONFIG} there), which this command "
                           f"would overwrite: continue it with {resume_command(run_dir)}, or give a new folder")
+    if not resume or Path(resume).resolve() != run_dir.resolve():
+        try:
+            check_new_folder(run_dir, before, app, log_file)
+        except FolderNotEmptyError:
+            release(run_dir)
+            raise
     _claimed[run_dir.resolve()] = (first_new, before, hydra_files)
+
+
+def check_new_folder(run_dir: Path, before: set[str], app: str, log_file: str) -> None:
+    """Refuse a new run of ``python -m grt.<app>`` in ``run_dir`` unless the folder is new or empty (``before``:
+    the names it held), or holds only a start of the same app killed before it saved anything (Hydra's
+    record and ``log_file``), or is a folder the app continues in place (a ``grt.blueteam`` study, a
+    ``grt.train`` training).
+
+    Raises:
+        FolderNotEmptyError: names the folder, what it holds and what to do.
+    """
+    held = sorted(before - {LOCK})
+    hydra = run_dir / ".hydra"
+    killed_start = set(held) <= {".hydra", log_file} and (
+        not hydra.is_dir() or {p.name for p in hydra.iterdir()} <= HYDRA_RECORD)
+    in_place = (app == "blueteam" and is_study_folder(run_dir)) or (app == "train" and is_training_folder(run_dir))
+    if not held or killed_start or in_place:
+        return
+    shown = ", ".join(held[:4]) + (f" and {len(held) - 4} more" if len(held) > 4 else "")
+    flag = "hydra.run.dir=PATH" + (" or out_dir=PATH" if app == "select" else "")
+    raise FolderNotEmptyError(f"{run_dir} is not empty (it holds {shown}): a new python -m grt.{app} starts only in a "
+                              f"new or empty folder, so that nothing there is overwritten or mixed with its files; "
+                              f"give another folder ({flag}), or leave it out for a new one")
 
 
 def discard_new(run_dir: Path) -> str:

@@ -68,3 +68,69 @@ def test_an_empty_resume_is_refused_not_a_new_run(app, tmp_path, capsys, monkeyp
     assert code == 2 and err.count("\n") == 1, err
     assert err.startswith("error: 'resume=': resume= is empty (an unset shell variable?)") and "resume=DIR" in err
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------- a new run, a new folder
+
+def test_a_new_run_in_a_folder_of_the_users_files_is_refused_and_changes_nothing(tmp_path):
+    """The user's own ``summary.json``, ``nominal.obj``, ``.hydra/config.yaml`` and notes: ``grt.run
+    hydra.run.dir=DIR`` overwrote three of them; now it is one line, exit 2, every byte as it was."""
+    mine = tmp_path / "mine"
+    (mine / ".hydra").mkdir(parents=True)
+    for name, text in (("summary.json", '{"mine": 1}'), ("nominal.obj", "v 0 0 0\n"),
+                       (".hydra/config.yaml", "object: mine\n"), ("notes.txt", "my notes\n")):
+        (mine / name).write_text(text)
+    before = snapshot(mine)
+    res = grt_run(*RUN, f"hydra.run.dir={mine}")
+    assert res.returncode == 2, res.stderr[-3000:]
+    line = error_line(res.stderr, res.stdout)
+    assert line.startswith(f"error: {mine} is not empty (it holds .hydra, nominal.obj, notes.txt, summary.json)"), line
+    assert "hydra.run.dir=PATH" in line, line
+    assert snapshot(mine) == before
+
+
+def test_a_finished_evaluations_folder_keeps_its_record(tmp_path):
+    """``grt.evaluate hydra.run.dir=DIR`` of a finished evaluation replaced its ``.hydra`` record; refused now."""
+    folder = tmp_path / "evaluation"
+    (folder / ".hydra").mkdir(parents=True)
+    (folder / ".hydra" / "config.yaml").write_text("object: can\n")
+    (folder / "evaluate.log").write_text("")
+    (folder / "evaluation.json").write_text('{"score": 0.5}')
+    before = snapshot(folder)
+    res = subprocess.run([sys.executable, "-m", "grt.evaluate", "object=can", f"hydra.run.dir={folder}"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2, res.stderr[-3000:]
+    line = error_line(res.stderr, res.stdout)
+    assert f"{folder} is not empty (it holds .hydra, evaluate.log, evaluation.json)" in line, line
+    assert "a new python -m grt.evaluate starts only in a new or empty folder" in line
+    assert snapshot(folder) == before
+
+
+def test_which_folders_a_new_run_may_take(tmp_path):
+    """New or empty (a lock file left by a SIGKILL is nothing), Hydra's files of a start killed before it saved
+    anything, or a study / training its app continues in place; anything else is refused."""
+    from grt.runfolder import LOCK, FolderNotEmptyError, check_new_folder
+
+    def held(folder: Path) -> set[str]:
+        return {p.name for p in folder.iterdir()}
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / LOCK).write_text("123\n")
+    killed = tmp_path / "killed"
+    (killed / ".hydra").mkdir(parents=True)
+    for name in ("config.yaml", "hydra.yaml", "overrides.yaml"):
+        (killed / ".hydra" / name).write_text("{}\n")
+    (killed / "run.log").write_text("")
+    study = tmp_path / "study"
+    (study / ".hydra").mkdir(parents=True)
+    (study / ".hydra" / "config.yaml").write_text("run: /r\nblueteam: {}\n")
+    (study / "last.pt").write_bytes(b"weights")
+    for folder, app in ((empty, "run"), (killed, "run"), (study, "blueteam")):
+        check_new_folder(folder, held(folder), app, f"{app}.log")
+    for folder, app in ((killed, "evaluate"), (study, "run"), (study, "train")):
+        with pytest.raises(FolderNotEmptyError, match="is not empty"):
+            check_new_folder(folder, held(folder), app, f"{app}.log")
+    (killed / ".hydra" / "notes.txt").write_text("mine\n")  # not Hydra's: the user's
+    with pytest.raises(FolderNotEmptyError):
+        check_new_folder(killed, held(killed), "run", "run.log")
