@@ -492,6 +492,8 @@ def resume_overrides(overrides: list[str], kind: Resumable = RUN) -> list[str]:
     if not isinstance(run_dir, str):
         raise ResumeError(f"{resume[-1].input_line}: resume= takes one run folder")
     saved = kind.load(Path(run_dir))
+    if kind is RUN:
+        refuse_edited_record(Path(run_dir))
     free = [o for o in given if kind.free(o.key_or_group)]
     changed = [o for o in given if o.key_or_group != "resume" and o not in free and not saved.keeps(o)]
     if changed:
@@ -503,6 +505,67 @@ def resume_overrides(overrides: list[str], kind: Resumable = RUN) -> list[str]:
             f"or start a new {kind.noun} with these settings: the same command without resume=")
     own = [line for line in saved.overrides if not any(_under(_key(line), (o.key_or_group,)) for o in free)]
     return [*own, "hydra.output_subdir=.hydra/resume", *(o.input_line for o in free), resume[-1].input_line]
+
+
+# Keys of a run's record not compared with Hydra's record of its start (:func:`record_edits`): those a resume
+# may give (they do not change the run), where the run ran, and values kept as given (the policy's token).
+_NOT_COMPARED = (*RESUME_FREE, *FROM_COMMAND, "paths", "resume", "policy.token", "evaluator")
+
+
+def record_edits(run_dir: Path) -> list[str]:
+    """Where a run's own record (``run_config.yaml``) and Hydra's record of its start (``.hydra/config.yaml``,
+    which a resume never rewrites) disagree on a key that shapes the run: ``["object (run_config.yaml: bottle,
+    .hydra/config.yaml: mug)", ...]``; empty when they agree or there is no second record to compare with
+    (a format-0 folder, a run started from Python). Keys a resume may change, and values that do not resolve
+    outside the run (``${hydra:...}``), are not compared; the evaluator's collision keys are."""
+    record, start = run_dir / RUN_CONFIG, run_dir / TRAIN_RECORD
+    if not record.is_file() or not start.is_file():
+        return []
+    try:
+        saved, started = OmegaConf.load(record).config, OmegaConf.load(start)
+    except Exception:  # noqa: BLE001 - an unreadable record: SavedRun.load names it
+        return []
+    found: list[str] = []
+    _compare(saved, started, started, "", found)
+    evaluator = saved.get("evaluator") if isinstance(saved.get("evaluator"), DictConfig) else {}
+    for key in EVALUATOR_RESULTS:
+        if key in evaluator:
+            _compare_leaf(evaluator[key], started, f"evaluator.{key}", found)
+    return found
+
+
+def _compare(saved: DictConfig, node: DictConfig, started: DictConfig, prefix: str, found: list[str]) -> None:
+    for key in saved.keys():
+        path = f"{prefix}{key}"
+        if _under(path, _NOT_COMPARED) or key not in node:
+            continue
+        if isinstance(saved[key], DictConfig) and isinstance(node._get_node(key), DictConfig):
+            _compare(saved[key], node[key], started, f"{path}.", found)
+        else:
+            _compare_leaf(saved[key], started, path, found)
+
+
+def _compare_leaf(value, started: DictConfig, path: str, found: list[str]) -> None:
+    try:
+        had = OmegaConf.select(started, path, throw_on_resolution_failure=True)
+    except Exception:  # noqa: BLE001 - e.g. ${hydra:...}: nothing to compare with outside the run
+        return
+    mine = OmegaConf.to_container(value, resolve=True) if isinstance(value, (DictConfig, ListConfig)) else value
+    had = OmegaConf.to_container(had, resolve=True) if isinstance(had, (DictConfig, ListConfig)) else had
+    if mine != had:
+        found.append(f"{path} ({RUN_CONFIG}: {mine}, {TRAIN_RECORD}: {had})")
+
+
+def refuse_edited_record(run_dir: Path) -> None:
+    """Raise :class:`ResumeError` when the run's record was edited since it started (:func:`record_edits`),
+    before anything is written: a resume would otherwise run another config over the run's journal."""
+    edits = record_edits(run_dir)
+    if edits:
+        shown = "; ".join(edits[:3]) + (f"; and {len(edits) - 3} more" if len(edits) > 3 else "")
+        raise ResumeError(f"resume={run_dir}: the run's record was edited after it started, its two records "
+                          f"differ: {shown}. A run keeps the config it started with: restore {RUN_CONFIG} (the "
+                          f"start's values are in {TRAIN_RECORD}), or start a new run with the new settings "
+                          "(the same command without resume=)")
 
 
 def own_config(cfg: DictConfig) -> DictConfig:

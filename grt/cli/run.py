@@ -38,8 +38,9 @@ from pathlib import Path
 import hydra
 from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
 from grt.cli.launchers import check_launcher, unfinished_job
@@ -49,12 +50,13 @@ from grt.runfolder import (
     discard_new,
     interrupted,
     is_run_folder,
+    load_run_config,
     own_config,
     resume_command,
     resume_overrides,
     storage_error,
 )
-from grt.runner import run
+from grt.runner import AFTER_SEARCH, nothing_to_do, run
 
 log = logging.getLogger("grt.run")
 
@@ -101,6 +103,21 @@ def _say(line: str, also: str = "") -> None:
     print(f"{line} ({also})" if also else line, file=sys.stderr, flush=True)
 
 
+def _finished(overrides: list[str]) -> str | None:
+    """:func:`grt.runner.nothing_to_do` for ``resume=DIR`` with ``overrides`` (checked by ``resume_overrides``),
+    or ``None``: the run's own config with the ``budget.confirm_trials`` given; a setting made after the
+    search (``report``, ``budget.videos``, ``logger``) given is work for the run itself to judge."""
+    parsed = OverridesParser.create().parse_overrides(overrides)
+    run_dir = Path(next(o for o in reversed(parsed) if o.key_or_group == "resume").value())
+    cfg = load_run_config(run_dir)
+    for o in parsed:
+        if any(o.key_or_group == k or o.key_or_group.startswith((f"{k}.", f"{k}/")) for k in AFTER_SEARCH):
+            return None
+        if o.key_or_group == "budget.confirm_trials":
+            OmegaConf.update(cfg, o.key_or_group, o.value(), merge=False)
+    return nothing_to_do(run_dir, cfg)
+
+
 def cli(argv: list[str] | None = None) -> None:
     """``grt-run``: a ``resume=`` is checked, and becomes the run's own command, before Hydra starts.
 
@@ -115,7 +132,11 @@ def cli(argv: list[str] | None = None) -> None:
         if launches:  # hydra/launcher=slurm where SLURM is missing: refused before anything is written
             check_launcher(args.overrides)
         if any("resume=" in arg for arg in args.overrides):
-            args.overrides = resume_overrides(args.overrides)
+            given, args.overrides = args.overrides, resume_overrides(args.overrides)
+            line = None if args.multirun or args.help or args.hydra_help else _finished(given)
+            if line is not None:  # said before Hydra starts: not a file of the run is touched
+                print(line, flush=True)
+                return
 
     def launch() -> None:
         try:

@@ -134,3 +134,77 @@ def test_which_folders_a_new_run_may_take(tmp_path):
     (killed / ".hydra" / "notes.txt").write_text("mine\n")  # not Hydra's: the user's
     with pytest.raises(FolderNotEmptyError):
         check_new_folder(killed, held(killed), "run", "run.log")
+
+
+# ------------------------------------------------------------------------------- resuming a finished run
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> Path:
+    """One finished toy run (7 candidates, CrashShapes among them)."""
+    run_dir = tmp_path_factory.mktemp("finished") / "run"
+    res = grt_run(*RUN, f"hydra.run.dir={run_dir}")
+    assert res.returncode == 0, res.stderr[-3000:]
+    return run_dir
+
+
+@pytest.fixture
+def run_copy(finished, tmp_path) -> Path:
+    copy = tmp_path / "run"
+    shutil.copytree(finished, copy)
+    return copy
+
+
+def test_a_finished_run_resumed_has_nothing_to_do_and_changes_nothing(run_copy):
+    """``resume=DIR`` of a finished run rewrote summary.json (its wall time, its trials per node); now it says
+    there is nothing to do and not a byte of the folder changes (Hydra's files of a resume included). More
+    fresh episodes (``budget.confirm_trials=N``) are work: done, then nothing to do again."""
+    before = snapshot(run_copy)
+    res = grt_run(f"resume={run_copy}", "budget.workers=3")
+    assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr[-3000:]
+    assert res.stdout.strip().startswith(f"nothing to do: {run_copy} is a finished run (7 candidates"), res.stdout
+    assert snapshot(run_copy) == before
+    res = grt_run(f"resume={run_copy}", "budget.confirm_trials=4")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert json.loads((run_copy / "summary.json").read_text())["confirm"]["trials"] == 4
+    after = snapshot(run_copy)
+    res = grt_run(f"resume={run_copy}", "budget.confirm_trials=4")
+    assert res.returncode == 0 and res.stdout.startswith("nothing to do:"), res.stdout + res.stderr[-3000:]
+    assert snapshot(run_copy) == after
+
+
+def test_an_edited_record_is_refused_before_anything_is_written(run_copy):
+    """``run_config.yaml`` edited (object can -> bottle): ``resume=`` overwrote nominal.obj, then failed with a
+    traceback. Now one line naming what differs, before Hydra or the run writes anything."""
+    record = run_copy / "run_config.yaml"
+    record.chmod(0o644)
+    record.write_text(record.read_text().replace("\n  object: can\n", "\n  object: bottle\n"))
+    before = snapshot(run_copy)
+    res = grt_run(f"resume={run_copy}")
+    assert res.returncode == 2, res.stderr[-3000:]
+    line = error_line(res.stderr, res.stdout)
+    assert "the run's record was edited after it started" in line, line
+    assert "object (run_config.yaml: bottle, .hydra/config.yaml: can)" in line and "restore run_config.yaml" in line
+    assert snapshot(run_copy) == before
+
+
+def test_an_edited_record_without_hydras_is_refused_by_its_object(run_copy):
+    """No second record to compare with (a run started from Python, ``grt.runner.run``): the object the edited
+    record gives is checked against the run's nominal.obj and journal, before anything is written."""
+    from grt.errors import UserError
+    from grt.runfolder import load_run_config
+    from grt.runner import run
+
+    shutil.rmtree(run_copy / ".hydra")
+    (run_copy / "summary.json").unlink()
+    journal = run_copy / "journal.jsonl"
+    journal.write_bytes(b"".join(journal.read_bytes().splitlines(keepends=True)[:3]))  # stopped mid-way
+    record = run_copy / "run_config.yaml"
+    record.chmod(0o644)
+    record.write_text(record.read_text().replace("\n  object: can\n", "\n  object: bottle\n"))
+    cfg = load_run_config(run_copy)
+    cfg.resume = str(run_copy)
+    before = snapshot(run_copy)
+    with pytest.raises(UserError, match=r"the object its record gives \(object=bottle, .* is not the object the run "
+                                        r"was made with"):
+        run(cfg)
+    assert snapshot(run_copy) == before
