@@ -535,7 +535,7 @@ def record_edits(run_dir: Path) -> list[str]:
 
 
 def _compare(saved: DictConfig, node: DictConfig, started: DictConfig, prefix: str, found: list[str]) -> None:
-    for key in saved.keys():
+    for key in saved:
         path = f"{prefix}{key}"
         if _under(path, _NOT_COMPARED) or key not in node:
             continue

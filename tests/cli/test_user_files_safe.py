@@ -9,7 +9,6 @@ one finished run made once for the module and copied for each test.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
