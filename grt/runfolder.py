@@ -639,9 +639,26 @@ def interrupted(run_dir: Path, how: str = "interrupted (Ctrl-C)") -> str:
 
 
 def resume_command(run_dir: Path) -> str:
-    """``python -m grt.run resume=DIR`` (DIR relative to the working folder when under it)."""
+    """``python -m grt.run resume=DIR`` (DIR relative to the working folder when under it), quoted so that it
+    works when pasted into a shell whatever DIR's name holds (:func:`override_arg`)."""
+    run_dir = Path(run_dir)
     shown = Path(os.path.relpath(run_dir)) if run_dir.resolve().is_relative_to(Path.cwd()) else run_dir
-    return f"python -m grt.run resume={shlex.quote(str(shown))}"
+    return f"python -m grt.run {override_arg('resume', str(shown))}"
+
+
+def override_arg(key: str, value: str) -> str:
+    """``key=value`` as one shell word that Hydra's override parser reads back as ``value``: as it is when both
+    take it so, else the value in Hydra's quotes (a space, a non-ASCII letter or one of ``()[]{},'"`` needs
+    them) inside the shell's (``'resume="/data/my run (2)"'``)."""
+    escaped = value.replace("\\", "\\\\").replace("'", "\\'")
+    for arg in (f"{key}={value}", f'{key}="{value}"', f"{key}='{value}'", f"{key}='{escaped}'"):
+        try:
+            override = OverridesParser.create().parse_override(arg)
+        except HydraException:
+            continue
+        if override.key_or_group == key and override.value() == value:
+            return shlex.quote(arg)
+    raise ValueError(f"{value!r} cannot be given as {key}= on Hydra's command line")
 
 
 def storage_error(exc: BaseException, run_dir: Path) -> str | None:

@@ -115,7 +115,7 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
             on_iteration=lambda t, scores: (
                 logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
                 folding(t)),
-            ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, shlex.quote(str(run_dir))),
+            ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, resume_command(run_dir)),
             validity=_validity(cfg))
         try:
             result = loop.run()
@@ -123,7 +123,7 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
             confirmation = _confirm(cfg, run_dir, result, deformer, evaluator, seeds, score)
         except PolicyServerError as err:  # a served policy went away: the journal keeps what finished
             raise PolicyServerError(f"{err}; start the server again and finish the run: "
-                                    f"python -m grt.run resume={shlex.quote(str(run_dir))}") from None
+                                    f"{resume_command(run_dir)}") from None
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
                                 wall_s=time.perf_counter() - start, confirmation=confirmation, score=score)
         logger.log_summary(summary)

@@ -207,3 +207,26 @@ def test_an_edited_record_without_hydras_is_refused_by_its_object(run_copy):
                                         r"was made with"):
         run(cfg)
     assert snapshot(run_copy) == before
+
+
+def test_report_on_a_stopped_run_gives_a_resume_command_that_works_when_pasted(finished, tmp_path, capsys):
+    """``grt.report`` on a run stopped mid-way says how to finish it, as ``--html`` does; in a folder named with
+    spaces, brackets and non-ASCII letters the printed command, run through a shell as printed, finishes it."""
+    import grt.cli.report as report_cli
+    from tests.cli.test_run_faults import _env
+
+    run_dir = tmp_path / "mes runs (été)" / "run 1"
+    shutil.copytree(finished, run_dir)
+    (run_dir / "summary.json").unlink()
+    journal = run_dir / "journal.jsonl"
+    journal.write_bytes(b"".join(journal.read_bytes().splitlines(keepends=True)[:3]))  # stopped mid-way
+    code, err = _in_process(report_cli.main, [str(run_dir)], capsys)
+    assert code == 2 and err.count("\n") == 1, err
+    assert err.startswith(f"error: {run_dir} is a run that has not finished (no summary.json; 3 candidate(s) in its "
+                          "journal): finish it with python -m grt.run "), err
+    command = err.split("finish it with ", 1)[1].split(", then report on it")[0]
+    assert command == f"python -m grt.run 'resume=\"{run_dir}\"'", command
+    res = subprocess.run(["bash", "-c", command.replace("python", sys.executable, 1)], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300, env=_env())
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert journal.read_bytes().count(b"\n") == 7 and (run_dir / "summary.json").is_file()
