@@ -24,6 +24,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from grt.config import plain
 from grt.confirm import confirm
 from grt.console import progress
+from grt.evaluators.base import NothingScoredError
 from grt.fileio import write_text_atomic
 from grt.geometry.complexity import angular_deficit_entropy
 from grt.geometry.deform import ShapeDeformer, deformer_options
@@ -124,6 +125,9 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
         except PolicyServerError as err:  # a served policy went away: the journal keeps what finished
             raise PolicyServerError(f"{err}; start the server again and finish the run: "
                                     f"{resume_command(run_dir)}") from None
+        except NothingScoredError as err:  # e.g. a policy whose output the task cannot use: fixable, resumable
+            raise NothingScoredError(f"{err}; fix that, then continue the run with: {resume_command(run_dir)}") \
+                from None
         summary = write_outputs(cfg, run_dir, result, deformer, handle_set, evaluator,
                                 wall_s=time.perf_counter() - start, confirmation=confirmation, score=score)
         logger.log_summary(summary)

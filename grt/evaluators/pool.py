@@ -440,14 +440,20 @@ class WorkerPool:
         return limit is not None and time.monotonic() - w.last_message > limit
 
     def _drain(self, w: _Worker, on_trial, pending: deque, crashes: dict) -> None:
-        try:
-            while w.conn.poll():
-                self._handle(w, w.conn.recv(), on_trial)
-        except (EOFError, OSError):  # its end of the pipe closed: the process is exiting
-            w.proc.join(timeout=5.0)
-            if w.proc.is_alive():
-                w.proc.kill()
-                w.proc.join()
+        while True:
+            try:
+                if not w.conn.poll():
+                    break
+                msg = w.conn.recv()
+            except (EOFError, OSError):  # its end of the pipe closed: the process is exiting
+                w.proc.join(timeout=5.0)
+                if w.proc.is_alive():
+                    w.proc.kill()
+                    w.proc.join()
+                break
+            # outside the try: an error of on_trial (a journal that cannot be written) is the caller's, not a
+            # dead worker's (it was once taken for one, and the candidate's result silently lost)
+            self._handle(w, msg, on_trial)
         if not w.proc.is_alive():
             w.proc.join()
             self._replace(w, on_trial, pending, crashes, f"died (exit code {w.proc.exitcode})")

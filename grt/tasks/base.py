@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 
 from grt.errors import UserError
+from grt.policies.base import check_actions
 
 SUCCESS, SIM_ERROR = "success", "sim_error"
 #: The trial modes of every task: its success condition held, or the simulation itself failed.
@@ -211,8 +212,9 @@ class EpisodeSession(TaskSession):
             obs = self.reset(seed, rebuild=self.rebuild_each_trial)
             self.policy.reset(seed)
             done, success = False, False
-            while not done:
-                action = self.policy.act({k: v[None] for k, v in obs.items()})[0]
+            while not done:  # a NaN or misshapen action: a sim_error naming the policy, from the first step on
+                action = check_actions(self.policy.act({k: v[None] for k, v in obs.items()}), (1, self.num_actions),
+                                       self.policy)[0]
                 obs, _, success, truncated, info = self.step(action)
                 self._check(info)
                 done = success or truncated or self.hopeless(info)

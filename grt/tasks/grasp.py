@@ -16,7 +16,9 @@ An episode (the paper's protocol, appendix "Grasping Task"):
    ``dropped_lift``), shake 10 cm sideways and back (``dropped_shake``), and judge: object lifted
    and pinched by both fingers.
 
-Any NaN, runaway object or physics exception ends the trial as ``sim_error``.
+Any NaN, runaway object or physics exception ends the trial as ``sim_error``, and so does a policy's output
+the task cannot use (a non-finite grasp pose or action, an action of the wrong shape), its reason naming the
+policy (:class:`grt.policies.base.PolicyOutputError`).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import gymnasium as gym
 import numpy as np
 import trimesh
 
-from grt.policies.base import GraspObservation, GraspStepPolicy
+from grt.policies.base import GraspObservation, GraspStepPolicy, check_actions, check_grasps
 from grt.tasks.base import COMMON_MODES, TaskSession, TrialOutcome
 from grt.tasks.grasp_env import GraspEnv  # registers GRT-Grasp-v1 (env docstring: Description, ...)
 from grt.tasks.motion import PandaIK, offset_along_approach, rotate_about_z, translated
@@ -147,6 +149,7 @@ class GraspSession(TaskSession):
             t = time.perf_counter()
             grasps = self.policy.plan(obs, seed)
             info["plan_s"] = time.perf_counter() - t
+        grasps = check_grasps(grasps, self.policy)  # a NaN pose: a sim_error naming the policy, never `missed`
         info["num_grasps"] = len(grasps)
         if not grasps:
             return "no_grasp_found"
@@ -263,7 +266,7 @@ class GraspSession(TaskSession):
             action = self.policy.act(obs)
             if action is None:
                 break
-            action = np.asarray(action, np.float64).reshape(8)
+            action = check_actions(action, (8,), self.policy)
             self._target, self._gripper = np.concatenate([action[:7], self._target[7:]]), float(action[7])
             self._move(self._target, 1)
         self._check_health()
