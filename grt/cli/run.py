@@ -14,13 +14,15 @@ returns the run's Final Drop so Hydra sweepers can optimize it.
 A run writes its own config once, when it starts, to ``run_config.yaml`` (read-only), and ``resume=DIR``
 alone is the whole command to continue it (:mod:`grt.runfolder`): :func:`cli` checks DIR and the command
 before Hydra starts, so a refused resume writes nothing anywhere, and hands Hydra the run's own overrides;
-``main`` then runs the saved config. Ctrl-C ends a run with one line naming the command that continues it
+``main`` then runs the saved config. A resume of a finished run with nothing left to do says so and
+changes nothing (before Hydra writes a file); ``resume=`` with no folder (an unset shell variable) and a record
+edited since the start are refused. Ctrl-C ends a run with one line naming the command that continues it
 (exit code 130), and so does SIGTERM, how schedulers and ``timeout`` stop a job (exit code 143).
 
 Every refusal is one ``error: ...`` line on stderr (exit code 2); a run refused before it saved anything
 leaves no folder behind (:func:`grt.runfolder.discard_new`). The folder is made and locked before Hydra
 writes into it (:class:`grt.runfolder.RunFolderCallback`): a second process in it is refused, naming the
-first's PID, and a new run never overwrites a run's record. A full disk or a folder that cannot be written
+first's PID, and a new run starts only in a new or empty folder (never over a run's record or the user's files). A full disk or a folder that cannot be written
 mid-run is one line naming the disk and the command that continues the run (exit code 1). A sweep's job
 that fails writes ``error.txt`` in its folder (with the command that continues it, if it had begun) and the
 sweep goes on; under the submitit launcher (``hydra/launcher=slurm``, :mod:`grt.cli.launchers`) a job that
