@@ -658,7 +658,7 @@ def override_arg(key: str, value: str) -> str:
             continue
         if override.key_or_group == key and override.value() == value:
             return shlex.quote(arg)
-    raise ValueError(f"{value!r} cannot be given as {key}= on Hydra's command line")
+    return shlex.quote(f"{key}={value}")  # no form Hydra reads back (never seen): the plain one, in a message
 
 
 def storage_error(exc: BaseException, run_dir: Path) -> str | None:
