@@ -4,7 +4,8 @@ The object is scored on the same episode seeds a red-team run with the same ``bu
 this reproduces a run's nominal score S0 (or re-scores a CrashShape file). The run folder gets
 ``evaluation.json`` (every trial); the console gets the figures and, as its last line, one JSON
 object: ``score, ci95, score_name, score_unit, ci, success_rate, trials, outcomes, wall_s, startup_s,
-trials_s, trials_per_s, object, mesh_hash, saved`` (``saved``: the path of ``evaluation.json``). The
+trials_s, trials_per_s, object, mesh_hash, saved`` (``saved``: the path of ``evaluation.json``). When every
+trial ended in ``sim_error`` there is no score: one ``error:`` line with the first trial's reason, exit code 2. The
 simulator workers are started first, with one line saying so; ``trials_per_s`` is the trials over
 ``trials_s``, the time after start-up that the progress bar measured, so the two rates agree. ``score`` is the task's score (the success rate of a binary task, the mean
 opening of a drawer task...), its interval by the task's ``ci`` setting (:mod:`grt.scores`). The run folder
@@ -28,6 +29,7 @@ from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
 from grt.config import plain, validate
+from grt.evaluators.base import NothingScoredError, check_scored
 from grt.evaluators.collision import CollisionError
 from grt.geometry.mesh import check_object_size, load_mesh, mesh_hash
 from grt.geometry.prepare import MeshSettings
@@ -46,6 +48,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     Raises:
         grt.objects.UnknownObjectError: neither a built-in object nor an existing file.
         MeshError: an unreadable or unusable mesh file, or one not in meters (``object_scale``).
+        NothingScoredError: every trial ended in ``sim_error`` (``evaluation.json`` is written first).
     """
     score = ScoreSpec.from_task(cfg.task)
     scale = cfg.get("object_scale", 1.0)
@@ -83,6 +86,10 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     record = {**summary, "seeds": seeds, "trials": [asdict(t) for t in result.trials]}
     (output_dir / "evaluation.json").write_text(json.dumps(record, indent=1, default=str))
     summary["saved"] = str(output_dir / "evaluation.json")
+    try:  # every trial a sim_error: no score ("success rate nan" and exit code 0 before), the first reason said
+        check_scored(result, f"the object {cfg.object}")
+    except NothingScoredError as err:
+        raise NothingScoredError(f"{err}; every trial's reason is in {summary['saved']}") from None
     if render_dir and not any(Path(render_dir).glob("*.png")):
         log.warning("render=true, but the task session wrote no pictures (it has no render(path))")
     return summary

@@ -363,7 +363,10 @@ class RayPool:
                     a.inflight.popleft()
                     self._answer(a, what, answer, on_trial)
                     a.since = time.monotonic()
-                if a.inflight and self._late(a, self.trial_timeout, a.since):
+                loading = a.inflight and a.inflight[0][1] == "load" and a.job is not None  # may plan every trial
+                limit = self.trial_timeout * max(1, len(a.job.seeds)) if loading and self.trial_timeout else \
+                    self.trial_timeout
+                if a.inflight and self._late(a, limit, a.since):
                     log.warning("Ray actor on %s silent for too long: killing it", node_label(a.node))
                     self._kill(a)
                     self._replace(a, on_trial, pending, crashes, "timed out (hung)")

@@ -108,6 +108,60 @@ class PolicyUnavailable(BaseException):
     judged, and the run can be finished later (``resume=DIR``). A ``BaseException`` for the same reason."""
 
 
+class PolicyOutputError(RuntimeError):
+    """A policy's output the task cannot use: non-finite numbers (a NaN grasp pose or action) or actions of
+    the wrong shape. Raised in the trial, which becomes a ``sim_error`` whose reason names the policy (never a
+    physical outcome such as ``missed``); the red-team run and ``grt.evaluate`` stop in one line when every
+    trial on the object ends so (:func:`grt.evaluators.base.check_scored`)."""
+
+
+def policy_name(policy) -> str:
+    """``module.Class`` of a policy (and what a served one calls itself), for messages."""
+    cls = type(policy)
+    name = getattr(policy, "name", None)
+    return f"{cls.__module__}.{cls.__qualname__}" + (f" ({name})" if isinstance(name, str) and name else "")
+
+
+def check_actions(actions, shape: tuple[int, ...], policy) -> np.ndarray:
+    """``actions`` as an array of ``shape``, finite (float64).
+
+    Raises:
+        PolicyOutputError: another shape, or a NaN/inf (names the policy, what it returned and what the task takes).
+    """
+    try:
+        out = np.asarray(actions, np.float64)
+    except (TypeError, ValueError) as err:
+        raise PolicyOutputError(f"policy {policy_name(policy)} returned {type(actions).__name__} ({err}), not "
+                                f"actions of shape {shape}") from None
+    if out.shape != tuple(shape):
+        raise PolicyOutputError(f"policy {policy_name(policy)} returned actions of shape {out.shape}; the task "
+                                f"takes {tuple(shape)}: fix the policy's act()")
+    if not np.all(np.isfinite(out)):
+        raise PolicyOutputError(f"policy {policy_name(policy)} returned a non-finite action {out.round(4).tolist()}")
+    return out
+
+
+def check_grasps(grasps, policy) -> list[Grasp]:
+    """A grasp planner's ``grasps``, each with a finite ``(4, 4)`` pose, width and score.
+
+    Raises:
+        PolicyOutputError: names the policy and the grasp.
+    """
+    for i, grasp in enumerate(grasps):
+        try:
+            pose, width, score = np.asarray(grasp.pose, np.float64), float(grasp.width), float(grasp.score)
+        except (AttributeError, TypeError, ValueError) as err:
+            raise PolicyOutputError(f"policy {policy_name(policy)} returned grasp {i} that is no Grasp(pose, width, "
+                                    f"score) ({err})") from None
+        if pose.shape != (4, 4):
+            raise PolicyOutputError(f"policy {policy_name(policy)} returned grasp {i} with a pose of shape "
+                                    f"{pose.shape}, not (4, 4)")
+        if not (np.all(np.isfinite(pose)) and np.isfinite(width) and np.isfinite(score)):
+            raise PolicyOutputError(f"policy {policy_name(policy)} returned a non-finite grasp (grasp {i}: pose "
+                                    f"{pose.round(4).tolist()}, width {width}, score {score})")
+    return list(grasps)
+
+
 class GraspPredictor(ABC):
     """A point-cloud grasp predictor (one inference)."""
 

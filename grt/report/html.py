@@ -33,6 +33,7 @@ from grt.journal import restore
 from grt.metrics import iter_at_50_label
 from grt.report.modes import esc, modes_section
 from grt.report.tables import ReportError, aggregate, collect
+from grt.runfolder import resume_command
 from grt.scores import ScoreSpec
 
 REPORT = "report.html"
@@ -114,7 +115,7 @@ def load_run(path: Path) -> RunFolder:
         total = _planned_total(config)
         run.problems.insert(0, f"partial run: no summary.json (the run stopped before its end); {len(records)} "
                                f"candidate(s) in the journal{f' of {total} planned' if total else ''}. "
-                               f"Finish it with python -m grt.run resume={path}")
+                               f"Finish it with {resume_command(path)}")
     return run
 
 

@@ -101,6 +101,10 @@ class InsertionSession(EpisodeSession):
     num_actions = 6
     task_name = "insertion"
     failure_modes = (*COMMON_MODES, "jammed", "misaligned", "dropped", "timeout")
+    # worst cases measured at a load average of 11 on 2 cores (scripts/step_times.py): a control step of the
+    # slowest shipped policy, insertion_pcd, 127 ms on average (its act 95 ms; insertion_state's step: 24 ms), a
+    # reset at most 0.48 s; rounded up
+    STEP_S, RESET_S = 0.15, 0.5
 
     def __init__(self, policy=None, socket_object: str = "usb_plug", head_length: float | None = None,
                  grip_height: float | None = None, clearance: float = 0.0004, chamfer: float = 0.0015,

@@ -174,3 +174,38 @@ def test_the_render_camera_frames_the_object_and_its_lift_and_shake():
         if name == "mug":
             old = np.ptp(_in_view(old_eye, old_target, 1.0, corners), axis=0).max() / 2
             assert old < 0.2 and span > 1.8 * old, (old, span)  # 17% -> 33% of the width: 3.7x the area
+
+
+class _NaNPlanner(AntipodalGraspPolicy):
+    """A grasp planner whose network diverged: its best grasp has a NaN pose."""
+
+    def plan(self, obs, seed):
+        from grt.policies.base import Grasp
+
+        return [Grasp(pose=np.full((4, 4), np.nan), width=0.03, score=1.0)]
+
+
+class _BadStep(GraspStepPolicy):
+    def __init__(self, action):
+        self.action = action
+
+    def act(self, obs):
+        return self.action
+
+
+@pytest.mark.parametrize(("policy", "message"), [
+    (_NaNPlanner(), "_NaNPlanner returned a non-finite grasp (grasp 0: pose [[nan"),
+    (_BadStep(np.full(8, np.nan)), "_BadStep returned a non-finite action [nan"),
+    (_BadStep(np.zeros(7)), "_BadStep returned actions of shape (7,); the task takes (8,)")])
+def test_unusable_policy_output_is_a_sim_error_naming_the_policy_never_missed(session, policy, message):
+    """Issue 40: a NaN grasp pose was scored as a physical ``missed``; a sim_error naming the policy now, for
+    grasp planners and step-by-step grasp policies alike (closed-loop tasks: tests/policies/test_policy_output.py)."""
+    session.load_object(box(), [np.asarray(box().vertices)])
+    planner, session.policy = session.policy, policy
+    try:
+        outcome = session.run_trial(0)
+    finally:
+        session.policy = planner
+    assert outcome.mode == "sim_error" and not outcome.success
+    assert outcome.info["error"].startswith("PolicyOutputError: policy ") and message in outcome.info["error"], \
+        outcome.info["error"]
