@@ -82,7 +82,7 @@ def test_each_mode_shown_is_explained_where_it_is_shown(run_copy):
 
     config = run_copy / "run_config.yaml"  # the toy run as a grasp run: its modes are the grasp task's
     config.chmod(0o644)
-    config.write_text(config.read_text().replace("grt.tasks.base.TaskSession", "grt.tasks.grasp.GraspSession"))
+    config.write_text(config.read_text().replace("tests.runner._toy_run.ToyTaskSession", "grt.tasks.grasp.GraspSession"))
     shape = json.loads((run_copy / "summary.json").read_text())["crashshapes"][0]
     name = f"it{shape['iteration']}_c{shape['candidate']}_seed7.mp4"
     write_video([np.full((32, 32, 3), 90, np.uint8)] * 4, run_copy / "videos" / name, fps=10)
