@@ -101,8 +101,11 @@ class ManiSkillPPOPolicy(BatchedPolicy):
         activation: the actor's hidden activation (ppo.py: ``tanh``).
     """
 
-    def __init__(self, checkpoint: str, obs_group: str | None = "state", deterministic: bool = True,
+    def __init__(self, checkpoint: str | None = None, obs_group: str | None = "state", deterministic: bool = True,
                  activation: str = "tanh"):
+        if not checkpoint:
+            raise ManiSkillCheckpointError("policy=maniskill_ppo needs policy.checkpoint=/path/to/ckpt.pt: the file "
+                                           "ManiSkill's ppo.py saved (runs/<run>/final_ckpt.pt)")
         if activation not in ACTIVATIONS:
             raise ManiSkillCheckpointError(f"policy.activation={activation}: give one of {', '.join(ACTIVATIONS)}")
         self.path = str(checkpoint)
