@@ -153,7 +153,13 @@ class RunReplayer:
 
         want = (self.records.get((0, 0)) or {}).get("mesh_hash")
         try:
-            mesh = load_mesh(self.cfg.object, scale=self.cfg.get("object_scale", 1.0),
+            from omegaconf import OmegaConf
+
+            from grt.tasks import task_object
+
+            spec = task_object(self.cfg.task, self.cfg.object, OmegaConf.select(self.cfg, "paths.cache_dir",
+                                                                                default="~/.cache/grt"))
+            mesh = load_mesh(spec, scale=self.cfg.get("object_scale", 1.0),
                              settings=MeshSettings.from_config(self.cfg.mesh) if self.cfg.get("mesh") else None)
             if want and mesh_hash(mesh.vertices, mesh.faces) == want and len(mesh.vertices) == len(saved.vertices):
                 return mesh

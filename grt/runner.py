@@ -36,7 +36,7 @@ from grt.redteam import RedTeamLoop, episode_seeds
 from grt.runfolder import locked, refuse_unless_run, save_run_config, without_secrets
 from grt.scores import ScoreSpec, check_nominal_floor, crash_margin, nominal_floor
 from grt.selectors.base import HandleSet
-from grt.tasks import preflight
+from grt.tasks import preflight, task_object
 
 log = logging.getLogger("grt.run")
 
@@ -57,7 +57,8 @@ def run(cfg: DictConfig) -> dict:
 def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
     start = time.perf_counter()
     scale = cfg.object_scale  # a resumed run's saved config is migrated (grt.runfolder): the key is there
-    mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.mesh))
+    mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), scale=scale,
+                     settings=MeshSettings.from_config(cfg.mesh))
     check_object_size(mesh)  # a mesh in millimetres: refused before any file
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # wrong plug, policy kind or checkpoint: likewise

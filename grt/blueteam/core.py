@@ -30,6 +30,7 @@ from grt.geometry.prepare import MeshSettings
 from grt.outputs import crash_records
 from grt.scores import ScoreSpec
 from grt.selectors.base import HandleSet
+from grt.tasks import task_object
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,7 @@ def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tu
     """``(nominal, deformer, collision)`` of a red-team run, prepared as the run did: its nominal mesh,
     the deformer over its handles (a journaled theta gives the candidate's mesh bit for bit) and its
     collision-part maker (CoACD cache under ``cache_dir``)."""
-    nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0),
+    nominal = load_mesh(task_object(run_cfg.task, run_cfg.object, cache_dir), scale=run_cfg.get("object_scale", 1.0),
                         settings=MeshSettings.from_config(run_cfg.get("mesh")))
     handles = HandleSet.from_json((Path(run_dir) / "handles.json").read_text())
     deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **deformer_options(run_cfg.deformer))

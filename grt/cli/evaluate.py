@@ -35,7 +35,7 @@ from grt.geometry.prepare import MeshSettings
 from grt.geometry.prepare import describe as describe_preparation
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
-from grt.tasks import preflight
+from grt.tasks import preflight, task_object
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,8 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     """
     score = ScoreSpec.from_task(cfg.task)
     scale = cfg.get("object_scale", 1.0)
-    mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.get("mesh")))
+    mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), scale=scale,
+                     settings=MeshSettings.from_config(cfg.get("mesh")))
     check_object_size(mesh)  # a mesh in millimetres: refused before any simulation
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # a policy of the wrong kind: refused first

@@ -37,6 +37,7 @@ from grt.optimizers.smoothness import project_to_budget
 from grt.optimizers.topdm import TOPDMOptimizer
 from grt.selectors.base import HandleSet
 from grt.selectors.panel import render_panel
+from grt.tasks import task_object
 
 
 def panel_png(mesh: trimesh.Trimesh, result: HandleSet) -> bytes:
@@ -188,7 +189,7 @@ def main(cfg: DictConfig) -> None:
         out_dir = Path(cfg.paths.output_dir)
         selector = hydra.utils.instantiate(cfg.selector)
         settings = MeshSettings.from_config(cfg.get("mesh"))
-        record = select(cfg.object, cfg.task, selector, out_dir, cfg.get("object_scale", 1.0), settings,
+        record = select(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), cfg.task, selector, out_dir, cfg.get("object_scale", 1.0), settings,
                         probe=dict(probe) if probe.get("sigmas") else None, deformer=cfg.get("deformer"))
     print(describe(record, out_dir))
     if record.get("probe"):

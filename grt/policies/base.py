@@ -185,12 +185,27 @@ class GraspStepPolicy(ABC):
         ``None`` when done (the task then lifts and shakes)."""
 
 
+class EnvDriverPolicy(ABC):
+    """A policy that drives a ManiSkill env itself, e.g. ManiSkill's motion-planning solutions: it gets the
+    task's gymnasium env with the candidate already in it, may ``reset(seed=seed)`` it (the same episode:
+    the candidate is installed and settled inside the env's own reset) and steps it as it likes. The task
+    judges the trial from the steps it took (:class:`grt.tasks.maniskill.session.ManiSkillSession`)."""
+
+    def reset(self, seed: int) -> None:  # noqa: B027 - optional hook
+        """Start a new trial."""
+
+    @abstractmethod
+    def solve(self, env, seed: int):
+        """Run one episode of ``env`` (a gymnasium env over a ManiSkill ``BaseEnv``) from ``seed``."""
+
+
 #: the kinds of policy a task can drive, in words (:func:`policy_kind`; a task session names those it
 #: runs in ``TaskSession.policy_kinds``, and :func:`grt.tasks.preflight` refuses another kind).
 POLICY_KINDS = {
     "grasp_planner": "a grasp planner (one point cloud in, ranked grasps out: GraspPolicy.plan)",
     "grasp_step": "a step-by-step grasp policy (GraspStepPolicy: one observation in, one arm action out)",
     "closed_loop": "a closed-loop policy (BatchedPolicy: observation groups in, actions out, every control step)",
+    "env_driver": "a policy that drives the env itself (EnvDriverPolicy.solve(env, seed), e.g. a motion planner)",
 }
 
 
@@ -198,7 +213,8 @@ def policy_kind(cls: type) -> str | None:
     """The kind of a policy class (a key of :data:`POLICY_KINDS`), or ``None`` when it is none of them.
 
     A subclass of one of the interfaces is of its kind; a class that subclasses none is taken by what it
-    has, as the tasks call it: ``plan`` (a grasp planner) or ``act`` (a closed-loop policy).
+    has, as the tasks call it: ``solve`` (an env driver), ``plan`` (a grasp planner) or ``act`` (a closed-loop
+    policy).
     """
     if issubclass(cls, GraspStepPolicy):
         return "grasp_step"
@@ -206,6 +222,8 @@ def policy_kind(cls: type) -> str | None:
         return "grasp_planner"
     if issubclass(cls, BatchedPolicy):
         return "closed_loop"
+    if issubclass(cls, EnvDriverPolicy) or callable(getattr(cls, "solve", None)):
+        return "env_driver"
     if callable(getattr(cls, "plan", None)):
         return "grasp_planner"
     if callable(getattr(cls, "act", None)):

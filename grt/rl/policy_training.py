@@ -32,11 +32,13 @@ from grt.evaluators.collision import make_collision
 from grt.evaluators.pool import build_session
 from grt.evaluators.sim import SimEvaluator
 from grt.geometry.mesh import load_mesh
+from grt.geometry.prepare import MeshSettings
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.redteam import episode_seeds
 from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train, write_json
 from grt.rl.vec_env import Shape, TaskVecEnv
 from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
+from grt.tasks import task_object
 
 log = logging.getLogger("grt.train")
 
@@ -50,7 +52,8 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
             file that cannot be written (before any training).
     """
     check_export(plain(cfg.train))
-    mesh = load_mesh(cfg.object)
+    mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir),
+                     settings=MeshSettings.from_config(cfg.get("mesh")) if cfg.get("mesh") else None)
     collision = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64)  # as the evaluator
     parts = collision.parts(mesh)
     task, train_cfg = plain(cfg.task), plain(cfg.train)
