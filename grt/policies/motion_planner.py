@@ -30,6 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from grt.errors import UserError
+from grt.policies.base import EnvDriverPolicy
 
 #: the one set-up command that makes the workers' numpy 1.26 (scripts/setup.sh --motionplanning)
 SETUP_COMMAND = "make motionplanning"
@@ -99,7 +100,7 @@ def known_solutions() -> list[str]:
     return names
 
 
-class MotionPlannerPolicy:
+class MotionPlannerPolicy(EnvDriverPolicy):
     """ManiSkill's motion-planning solution of the env's task (or a user's ``solve(env, seed=...)``).
 
     The task session hands it its ManiSkill env once per trial: :meth:`solve` resets the env with the
@@ -112,19 +113,36 @@ class MotionPlannerPolicy:
             same signature, e.g. for a user's own env).
         quiet: keep the solutions' prints (a failed plan's status) out of the worker's output; the last one
             is returned as the trial's ``status`` instead.
+        env_id, control_mode: the task's (the config interpolates them from ``task``): an env without a
+            solution, or a control mode other than ``pd_joint_pos``, is refused here, before any simulation.
     """
 
     #: the control mode the solutions step the env in
     control_mode = "pd_joint_pos"
 
-    def __init__(self, worker_path: str | list[str] | None = None, solution: str = "auto", quiet: bool = True):
+    def __init__(self, worker_path: str | list[str] | None = None, solution: str = "auto", quiet: bool = True,
+                 env_id: str | None = None, control_mode: str | None = None):
         self.folders = check_setup(worker_path)
         self.solution, self.quiet = str(solution), bool(quiet)
         if self.solution != "auto" and ":" not in self.solution:
             raise NoSolutionError(f"policy.solution={self.solution}: give auto (ManiSkill's solution for the env) "
                                   "or module:function (a solve(env, seed=...) of your own)")
+        if env_id:
+            self.check_env(str(env_id))
+        if control_mode is not None:
+            self.check_control_mode(str(control_mode))
         self._solve: Callable | None = None
         self._for: str | None = None
+
+    def check_control_mode(self, control_mode: str) -> None:
+        """Refuse a task that steps the robot in another control mode than the solutions' ``pd_joint_pos``.
+
+        Raises:
+            NoSolutionError: naming both modes and the override that fixes it.
+        """
+        if control_mode != self.control_mode:
+            raise NoSolutionError(f"policy=motion_planner steps the robot in {self.control_mode}, the task in "
+                                  f"{control_mode}: add task.session.control_mode={self.control_mode}")
 
     def check_env(self, env_id: str) -> None:
         """Refuse an env without a solution before any simulation (a file look-up, no import).
@@ -164,7 +182,10 @@ class MotionPlannerPolicy:
             ``{"planned": bool, "status": str}``: whether every plan was found, and the planner's last
             message (``"ok"`` when it said nothing). The env is left at the plan's last step.
         """
-        function = self._function(env.unwrapped.spec.id if env.unwrapped.spec else type(env.unwrapped).__name__)
+        raw = env.unwrapped
+        self.check_control_mode(str(raw.control_mode))
+        spec = getattr(env, "spec", None) or raw.spec
+        function = self._function(spec.id if spec is not None else type(raw).__name__)
         out = io.StringIO()
         with contextlib.redirect_stdout(out) if self.quiet else contextlib.nullcontext():
             result = function(env, seed=int(seed))
