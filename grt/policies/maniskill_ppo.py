@@ -154,3 +154,45 @@ class ManiSkillPPOPolicy(BatchedPolicy):
         if not self.deterministic:
             mean = mean + torch.exp(self.log_std) * torch.randn(mean.shape, generator=self.generator)
         return mean.clamp(-1.0, 1.0).numpy()
+
+
+def ppo_agent_state(grt_checkpoint: str | Path) -> dict[str, torch.Tensor]:
+    """A GRT-trained policy (``python -m grt.train``) as ppo.py's ``Agent.state_dict()``, so that ManiSkill's
+    own tools load it (``ppo.py --evaluate --checkpoint=...``): the observation normalizer is folded into the
+    first layer of the actor and of the critic (exact: the normalizer is affine), the scalar std becomes
+    ``actor_logstd``. ppo.py's ``Agent`` is 3 x 256 tanh layers on one flat observation group: a policy trained
+    with that actor and critic (``conf/train/push_cube_state.yaml``) converts; another is refused.
+
+    Raises:
+        ManiSkillCheckpointError: a policy whose networks are not that MLP.
+    """
+    from grt.policies import rsl_rl
+
+    ckpt = rsl_rl.load_checkpoint(grt_checkpoint)
+    cfg = ckpt["grt"]["train_cfg"]
+    groups = {tuple(g) for g in cfg["obs_groups"].values()}
+    for name in ("actor", "critic"):
+        net = cfg[name]
+        if net.get("class_name") != "MLPModel" or net.get("activation") != "tanh" or len(groups) != 1 or \
+                len(next(iter(groups))) != 1:
+            raise ManiSkillCheckpointError(f"{grt_checkpoint}: its {name} is not ppo.py's MLP (an MLPModel with tanh "
+                                           "activations on one observation group); it cannot be written as an Agent")
+    out: dict[str, torch.Tensor] = {}
+    for name, prefix in (("actor", "actor_mean"), ("critic", "critic")):
+        state = ckpt[f"{name}_state_dict"]
+        eps = 1e-2  # rsl_rl's EmpiricalNormalization default, which MLPModel uses
+        scale = 1.0 / (state["obs_normalizer._std"].reshape(-1) + eps) if "obs_normalizer._std" in state else None
+        shift = state["obs_normalizer._mean"].reshape(-1) if scale is not None else None
+        for key, value in state.items():
+            if not key.startswith("mlp."):
+                continue
+            index, what = key.split(".")[1:]
+            value = value.detach().clone().float()
+            if index == "0" and scale is not None:
+                weight = state["mlp.0.weight"].float() * scale  # W (x - m) s + b = (W s) x + (b - W s m)
+                value = weight if what == "weight" else value - weight @ shift
+            out[f"{prefix}.{index}.{what}"] = value
+    std = ckpt["actor_state_dict"].get("distribution.std_param")
+    log_std = ckpt["actor_state_dict"].get("distribution.log_std_param")
+    out["actor_logstd"] = (torch.log(std.float()) if std is not None else log_std.float()).reshape(1, -1)
+    return out

@@ -163,7 +163,9 @@ class TaskVecEnv(VecEnv):
         self._obs = self._stack(first)
         self.max_episode_length = int(max_steps or 256)
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=device)
-        self.num_actions = int(session_class(task).num_actions)  # the session class's, its one place
+        cls = session_class(task)  # the session class's, its one place (an env-wrapping class asks its env)
+        kwargs = {k: v for k, v in task["session"].items() if k != "_target_"}
+        self.num_actions = int(cls.action_size(**kwargs) if hasattr(cls, "action_size") else cls.num_actions)
         self.episodes: list[dict] = []  # every ended episode (success, length, shape, return)
 
     def _call(self, cmd: str, actions: np.ndarray | None = None):
