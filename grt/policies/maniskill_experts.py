@@ -11,6 +11,8 @@ cube's size (``half_size``): a deformed object is their blind spot, which is wha
   (over the cube when it is in the way), come down, and push it along the cube-to-goal line, correcting
   the line as the cube turns; hold still once the cube's centre is over the goal.
 - :class:`PickCubePolicy` (PickCube-v1): above the cube, open, down, close, lift to the goal, hold.
+- :class:`StackCubePolicy` (StackCube-v1): pick cubeA as above, carry it over cubeB, set it down on it,
+  open and move up.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from grt.policies.base import BatchedPolicy
 LAYOUTS = {
     "push": {"size": 35, "tcp": 18, "goal": 25, "cube": 28},   # PushCube-v1, PullCube-v1
     "pick": {"size": 42, "tcp": 19, "goal": 26, "cube": 29, "grasped": 18},  # PickCube-v1
+    "stack": {"size": 48, "tcp": 18, "cube": 25, "goal": 32, "fingers": 7},  # StackCube-v1 (goal: cubeB)
 }
 STEP_M = 0.1  # meters per unit of pd_ee_delta_pos's position action
 
@@ -158,3 +161,36 @@ class PickCubePolicy(_StateExpert):
             return np.r_[self._move(tcp, grip), 1.0]  # down, open
         self._closing[k] += 1
         return np.r_[np.zeros(3), -1.0]  # close
+
+
+class StackCubePolicy(PickCubePolicy):
+    """Stack cubeA on cubeB (StackCube-v1): :class:`PickCubePolicy` with cubeB's top as the goal; the
+    hand opens once cubeA is over cubeB at the stacking height and moves up. The state has no
+    ``is_grasped``: a cube is held when the closed fingers stay apart by about its width (qpos 7-8)."""
+
+    layout = "stack"
+
+    def reset(self, seed: int) -> None:
+        super().reset(seed)
+        self._released = None
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        state = np.asarray(obs["state"], np.float64)
+        n = len(state)
+        if self._closing is None or len(self._closing) != n:
+            self._closing = np.zeros(n, int)
+        if getattr(self, "_released", None) is None or len(self._released) != n:
+            self._released = np.zeros(n, bool)
+        tcp, cube_b, cube = self._part(state, "tcp"), self._part(state, "goal"), self._part(state, "cube")
+        width = self._part(state, "fingers", 2).sum(axis=1)
+        out = np.zeros((n, 4))
+        for k in range(n):
+            held = self._closing[k] >= self.close_steps and width[k] > self.half and np.linalg.norm(tcp[k] - cube[k]) < 0.02
+            place = cube_b[k] + [0.0, 0.0, 2 * self.half + 0.003]
+            if self._released[k] or (held and np.linalg.norm(cube[k] - place) < 0.006):
+                self._released[k] = True
+                out[k] = np.r_[self._move(tcp[k], np.r_[tcp[k][:2], place[2] + 0.08]), 1.0]  # open, up
+                continue
+            over = place + [0.0, 0.0, 0.03] if np.linalg.norm(cube[k][:2] - place[:2]) > 0.006 else place
+            out[k] = self._pick(k, tcp[k], over, cube[k], bool(held))
+        return out.astype(np.float32)

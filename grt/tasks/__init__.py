@@ -229,6 +229,9 @@ def task_object(task, spec, cache_dir: str | Path) -> str:
 
     if str(spec) != ACTOR_OBJECT:
         return str(spec)
+    if not OmegaConf.is_config(task) and not isinstance(task, Mapping) or "session" not in task:
+        raise TaskInputError("object=actor is the swapped actor of a ManiSkill task, and this command has no task "
+                             "config; give object=NAME (python -m grt.objects) or a mesh file (meters, GRT's frame)")
     task = OmegaConf.to_container(task, resolve=True) if not isinstance(task, dict) else task
     cls = session_class(task)
     make = getattr(cls, "nominal_object", None)

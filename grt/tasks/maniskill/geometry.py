@@ -191,7 +191,7 @@ def check_grt_frame(mesh: trimesh.Trimesh, what: str = "the object") -> None:
     off = np.array([centre[0] / size[0], centre[1] / size[1], lo[2] / size[2]])
     if np.all(np.abs(off) <= FRAME_TOLERANCE):
         return
-    shift = -np.array([centre[0], centre[1], lo[2]]) * 1000
+    shift = -np.array([centre[0], centre[1], lo[2]]) * 1000 + 0.0  # + 0.0: no '-0.0' in the message
     raise FrameError(f"{what} is not in GRT's frame: its lowest point is at z = {lo[2] * 1000:.1f} mm and its x/y centre "
                      f"at ({centre[0] * 1000:.1f}, {centre[1] * 1000:.1f}) mm, but GRT meshes rest on z = 0, centred in "
                      f"x/y (a mesh centred on its origin is in the actor's own frame): move it by "

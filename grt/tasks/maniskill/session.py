@@ -54,6 +54,7 @@ import numpy as np
 import trimesh
 
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TrialOutcome
+from grt.tasks.maniskill.driver import StepLimit, StepRecorder
 from grt.tasks.maniskill.geometry import ActorFrame, check_grt_frame
 from grt.tasks.maniskill.swap import ActorSwap, Candidate
 
@@ -323,40 +324,6 @@ class ManiSkillSession(EpisodeSession):
             mode, score, success, info = "sim_error", 0.0, False, {"error": f"{type(err).__name__}: {err}"}
         info = {**info, "steps": self.steps, "wall_s": time.perf_counter() - start}
         return TrialOutcome(seed=seed, score=float(score), success=mode == "success", mode=mode, info=info)
-
-
-class StepLimit(Exception):
-    """An env-driving policy took more steps than the session allows."""
-
-
-def _recorder_class():
-    import gymnasium as gym
-
-    class _StepRecorder(gym.Wrapper):
-        """The session's env as an env-driving policy sees it: steps pass through and are recorded."""
-
-        def __init__(self, env, session: ManiSkillSession, limit: int):
-            super().__init__(env)
-            self.session, self.limit = session, int(limit)
-            self.steps, self.success, self.last = 0, False, None
-
-        def step(self, action):
-            if self.steps >= self.limit:
-                raise StepLimit(f"more than {self.limit} steps")
-            out = self.env.step(action)
-            info = self.session._info(out[4])
-            self.session._check(info)
-            self.steps += 1
-            self.success |= bool(info["success"])
-            self.last = info
-            return out
-
-    return _StepRecorder
-
-
-def StepRecorder(env, session: ManiSkillSession, limit: int):  # noqa: N802 - a class made on first use
-    """Wrap ``env`` so that every step an env-driving policy takes is recorded for the judge."""
-    return _recorder_class()(env, session, limit)
 
 
 def _numpy(value):

@@ -113,6 +113,7 @@ class ActorSwap:
         self.refresh = refresh
         self.candidates: dict[int, Candidate] = {}
         self.reference: trimesh.Trimesh | None = None  # the first build's stock solid (actor frame)
+        self.reference_solids: list[trimesh.Trimesh] = []  # ... and its records' solids, one per record
         self.builds: list[Build] = []
         self.names: list[str] = []  # every actor name built in the last scene (for messages)
         self.env = None
@@ -158,6 +159,7 @@ class ActorSwap:
         stock = records_mesh(records)
         if self.reference is None:
             self.reference = stock
+            self.reference_solids = [r.mesh for r in records if r.mesh is not None]
         num = builder.scene.num_envs
         idxs = [int(i) for i in (range(num) if builder.scene_idxs is None else list(builder.scene_idxs))]
         scale = np.asarray(stock.extents, np.float64) / np.maximum(np.asarray(self.reference.extents), 1e-12)
