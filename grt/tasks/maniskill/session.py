@@ -173,7 +173,11 @@ class ManiSkillSession(EpisodeSession):
         with self.swap.active():
             self.env = gym.make(self.env_id, **kwargs)
         self.unwrapped = self.env.unwrapped
-        self._check_actor()
+        try:
+            self._check_actor()
+        except TaskInputError:
+            self.env.close()
+            raise
         self.swap.attach(self.unwrapped)
         self.frame = ActorFrame.of(self.swap.reference)
         from mani_skill.utils.registration import REGISTERED_ENVS
@@ -192,12 +196,17 @@ class ManiSkillSession(EpisodeSession):
     # ------------------------------------------------------------------ set-up checks
     def _check_actor(self) -> None:
         """Exactly one actor of the env matches ``actor`` (per sub-scene), or a one-line refusal."""
-        matched = self.swap.matched()
-        if len(matched) == 1:
+        builds = self.swap.builds
+        per_scene = {}  # sub-scene -> the matching actors built in it (peg_0, peg_1, ... on a GPU: one each)
+        for b in builds:
+            for i in b.scene_idxs:
+                per_scene.setdefault(i, []).append(b.name)
+        several = next((names for names in per_scene.values() if len(names) > 1), None)
+        if several:
+            raise TaskInputError(f"task.actor={self.actor} matches {len(several)} actors of {self.env_id} "
+                                 f"({', '.join(several)}): name one of them exactly")
+        if builds:
             return
-        if len(matched) > 1:
-            raise TaskInputError(f"task.actor={self.actor} matches {len(matched)} actors of {self.env_id} "
-                                 f"({', '.join(matched)}): name one of them exactly")
         for art_name, art in self.unwrapped.scene.articulations.items():
             links = [link.name for link in art.get_links()]
             hit = [n for n in [art_name, *links] if re.fullmatch(self.actor, n)]
@@ -279,19 +288,31 @@ class ManiSkillSession(EpisodeSession):
     def _flag(self, info: dict, key: str):
         return np.asarray(_numpy(info[key])).reshape(-1)[0]
 
-    def _info(self, info: dict) -> dict:
-        """The trial's record of one step: success, the failure flags and the score key, as plain values."""
-        keys = {"success", *(f for f, _ in self.flags)}
+    def info_batch(self, info: dict) -> dict[str, np.ndarray]:
+        """What the judge reads of the env's info, batched: ``{key: (num_envs,)}`` for success, the failure
+        flags and the score key (bool or float arrays; the GPU evaluator judges every sub-scene from it).
+
+        Raises:
+            KeyError: a key the env's info does not have (names the keys it has).
+        """
+        keys = ["success", *(f for f, _ in self.flags)]
         if self.score_key != "success":
-            keys.add(self.score_key)
+            keys.append(self.score_key)
         out = {}
-        for key in keys:
+        for key in dict.fromkeys(keys):
             if key not in info:
                 raise KeyError(f"the env's info has no {key!r} (task.failure_flags / task.score); it has "
                                f"{', '.join(sorted(info))}")
-            value = self._flag(info, key)
-            out[key] = bool(value) if value.dtype == bool else float(value)
+            out[key] = np.asarray(_numpy(info[key])).reshape(self.unwrapped.num_envs, -1)[:, 0]
         return out
+
+    def judge_batch(self, success: np.ndarray, info: dict[str, np.ndarray]) -> list[str]:
+        """:meth:`judge` of every sub-scene: ``success`` ``(num_envs,)``, ``info`` from :meth:`info_batch`."""
+        return [self.judge(bool(success[i]), {k: v[i] for k, v in info.items()}) for i in range(len(success))]
+
+    def _info(self, info: dict) -> dict:
+        """The trial's record of one step (sub-scene 0): success, the failure flags and the score key."""
+        return {k: bool(v[0]) if v.dtype == bool else float(v[0]) for k, v in self.info_batch(info).items()}
 
     def _check(self, info: dict) -> None:
         super()._check(info)
