@@ -100,3 +100,50 @@ def accept_numpy2_pickles() -> None:
     with contextlib.suppress(ImportError):  # numpy < 1.26 has no numpy._core at all: nothing to map onto
         importlib.import_module("numpy._core")
         sys.modules["numpy._core.numeric"] = importlib.import_module("numpy.core.numeric")
+
+
+def run_in_worker(folders: list[str], function, *args):
+    """``function(*args)`` in a spawned process whose import path starts with ``folders`` (a command that runs a
+    policy in its own process, e.g. ``grt.calibrate``, runs it there instead when the policy has a
+    ``worker_path``); returns its result. ``function`` must be importable by name (a module-level function).
+
+    Raises:
+        the function's own :class:`grt.errors.UserError` (re-raised with its message), or RuntimeError when
+        it failed otherwise or the process died.
+    """
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_call, args=(child, function, args), daemon=True)
+    with spawn_path(folders):
+        proc.start()
+    child.close()
+    try:
+        kind, value = parent.recv()
+    except EOFError:
+        proc.join()
+        raise RuntimeError(f"the process running {function.__name__} died (exit code {proc.exitcode})") from None
+    finally:
+        proc.join(timeout=30)
+        parent.close()
+    if kind == "user":
+        raise UserError(value)
+    if kind == "error":
+        raise RuntimeError(value)
+    return value
+
+
+def _call(conn, function, args) -> None:
+    """The child of :func:`run_in_worker`."""
+    import traceback
+
+    accept_numpy2_pickles()
+    try:
+        conn.send(("ok", function(*args)))
+    except UserError as exc:
+        conn.send(("user", str(exc)))
+    except Exception:  # noqa: BLE001 - the parent says it, with the traceback
+        conn.send(("error", traceback.format_exc()))
+    finally:
+        conn.close()
