@@ -30,3 +30,14 @@ class ProbeSession(TaskSession):
         return TrialOutcome(seed, np.float64(seed) / 10, bool(np.bool_(seed % 2 == 0)), "success",
                             {"numpy": np.__version__, "total": np.float64(self.total), "array": np.arange(3.0) * seed,
                              "ints": np.arange(2, dtype=np.int32)})
+
+
+def numpy_version(offset: float) -> tuple[str, float]:
+    """What :func:`grt.evaluators.worker_env.run_in_worker` runs in the tests: this process's numpy, and a sum."""
+    return np.__version__, float(np.sum(np.arange(4.0)) + offset)
+
+
+def refuse(reason: str) -> None:
+    from grt.errors import UserError
+
+    raise UserError(reason)

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 import trimesh
 
+from grt.errors import UserError
 from grt.evaluators.pool import Job, WorkerPool
-from grt.evaluators.worker_env import WorkerPathError, worker_path
+from grt.evaluators.worker_env import WorkerPathError, run_in_worker, worker_path
 
 HERE = Path(__file__).parent
 ROOT = HERE.parents[1]
@@ -73,3 +74,14 @@ def test_a_worker_path_that_does_not_exist_or_cannot_apply_is_refused(tmp_path):
     with pytest.raises(WorkerPathError, match="start_method=spawn"):
         WorkerPool(TASK, _policy(tmp_path), workers=1, start_method="forkserver")
     assert worker_path({"_target_": "x"}) == [] and worker_path(_policy(tmp_path)) == [str(tmp_path.resolve())]
+
+
+@needs_setup
+def test_a_command_runs_a_worker_path_policy_in_a_process_started_with_it(monkeypatch):
+    """grt.calibrate runs its session through run_in_worker when the policy has a worker_path."""
+    monkeypatch.syspath_prepend(str(HERE))
+    import _numpy_probe
+
+    assert run_in_worker([str(MP_DIR)], _numpy_probe.numpy_version, 0.5) == ("1.26.4", 6.5)
+    with pytest.raises(UserError, match="^the set-up is missing$"):
+        run_in_worker([str(MP_DIR)], _numpy_probe.refuse, "the set-up is missing")
