@@ -1,17 +1,20 @@
 # The two commands of the README.  Both set up everything they need first (idempotent).
 PY := .venv/bin/python
 
-.PHONY: setup demo test test-fast lint bench docs
+.PHONY: setup motionplanning demo test test-fast lint bench docs
 setup:
 	bash scripts/setup.sh
+
+motionplanning:      ## also ManiSkill's motion planners (policy=motion_planner): numpy 1.26 for their workers
+	bash scripts/setup.sh --motionplanning
 
 demo: setup          ## red-team the default object (grasp task, budget=quick)
 	$(PY) -m grt.run
 
-test: setup          ## the whole test suite (what CI runs)
+test: motionplanning ## the whole test suite (what CI runs; with the motion planners' numpy, ~4 s and 79 MB)
 	$(PY) -m pytest -q
 
-test-fast: setup     ## skip the slow simulation tests
+test-fast: motionplanning  ## skip the slow simulation tests
 	$(PY) -m pytest -q -m "not slow"
 
 lint:

@@ -114,9 +114,12 @@ class RunReplayer:
 
     Args:
         run_dir: a red-team run folder.
+        here: run the trials in this process even when the run's policy names a ``worker_path`` (a Python of
+            its own, e.g. the motion planners' numpy 1.26); ``False`` runs them in a child process started with
+            that path first, as the run's simulator workers were (:class:`_ChildReplayer`).
     """
 
-    def __init__(self, run_dir: Path):
+    def __init__(self, run_dir: Path, here: bool = False):
         import trimesh
         from omegaconf import OmegaConf
 
@@ -143,6 +146,9 @@ class RunReplayer:
                                         ev.get("cache_dir"), ev.get("max_hull_vertices", 64))
         self.task, self.policy = plain(self.cfg.task), plain(self.cfg.policy)
         self._session, self._loaded = None, None
+        from grt.evaluators.worker_env import worker_path
+
+        self._child = None if here or not worker_path(self.policy) else _ChildReplayer(self.run_dir)
 
     def _nominal(self, saved):
         """The run's own nominal mesh: prepared again from its object spec when that gives the journal's
@@ -205,6 +211,10 @@ class RunReplayer:
 
     def run(self, iteration: int, candidate: int, seed: int, video: Path | None = None) -> dict:
         """Run one trial; returns ``{candidate, seed, outcome, mode, score, journal_outcome, ...}``."""
+        if self._child is not None:
+            out, notes = self._child.run(iteration, candidate, seed, video)
+            self.notes.extend(n for n in notes if n not in self.notes)
+            return out
         rec = self.record(iteration, candidate)
         trial = next((t for t in rec.get("trials", []) if int(t["seed"]) == int(seed)), None)
         if trial is None:
@@ -241,9 +251,77 @@ class RunReplayer:
         return out
 
     def close(self) -> None:
+        if self._child is not None:
+            self._child.close()
+            self._child = None
         if self._session is not None:
             self._session.close()
             self._session = None
+
+
+class _ChildReplayer:
+    """A :class:`RunReplayer` in a spawned process whose import path starts with the run's policy's
+    ``worker_path`` (:mod:`grt.evaluators.worker_env`): the trials, and their filming, run where the run's
+    simulator workers ran them (ManiSkill's motion planners need numpy 1.26, this process has numpy 2)."""
+
+    def __init__(self, run_dir: Path):
+        import multiprocessing as mp
+
+        from grt.config import plain
+        from grt.evaluators.worker_env import spawn_path, worker_path
+        from grt.runfolder import load_run_config
+
+        ctx = mp.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_replay_child, args=(str(run_dir), child), daemon=True)
+        with spawn_path(worker_path(plain(load_run_config(run_dir).policy))):
+            self.proc.start()
+        child.close()
+
+    def run(self, iteration: int, candidate: int, seed: int, video: Path | None) -> tuple[dict, list[str]]:
+        self.conn.send((iteration, candidate, seed, None if video is None else str(video)))
+        try:
+            kind, value, notes = self.conn.recv()
+        except EOFError:
+            raise RuntimeError(f"the replay process died (exit code {self.proc.exitcode})") from None
+        if kind == "user":
+            raise ReplayError(value)
+        if kind == "error":
+            raise RuntimeError(value)
+        return value, notes
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.conn.send(None)
+        self.proc.join(timeout=30)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        self.conn.close()
+
+
+def _replay_child(run_dir: str, conn) -> None:
+    """The child of :class:`_ChildReplayer`: one :class:`RunReplayer`, one trial per message until ``None``."""
+    from grt.evaluators.worker_env import accept_numpy2_pickles
+
+    accept_numpy2_pickles()
+    replayer = None
+    try:
+        replayer = RunReplayer(Path(run_dir), here=True)
+        while (job := conn.recv()) is not None:
+            iteration, candidate, seed, video = job
+            try:
+                out = replayer.run(iteration, candidate, seed, video=None if video is None else Path(video))
+                conn.send(("ok", out, list(replayer.notes)))
+            except UserError as exc:
+                conn.send(("user", str(exc), []))
+            except Exception as exc:  # noqa: BLE001 - said in the parent, as an error of this process would be
+                conn.send(("error", f"{type(exc).__name__}: {exc}", []))
+    except (EOFError, OSError):
+        pass
+    finally:
+        if replayer is not None:
+            replayer.close()
 
 
 @contextlib.contextmanager

@@ -5,10 +5,19 @@
 #   scripts/setup.sh            # create/refresh .venv and the Vulkan driver
 #   GRT_TORCH="torch==2.13.0" scripts/setup.sh   # the default pin (CPU wheel on the reference machine)
 #   GRT_TORCH="torch" scripts/setup.sh           # e.g. GPU users: let pip pick a CUDA build
+#   scripts/setup.sh --motionplanning            # also ManiSkill's motion planners (make motionplanning)
 #
 # Re-running is cheap: every step checks whether it is already done.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+
+MOTIONPLANNING=0
+for arg in "$@"; do
+  case "$arg" in
+    --motionplanning) MOTIONPLANNING=1 ;;
+    *) printf 'usage: scripts/setup.sh [--motionplanning]\n' >&2; exit 2 ;;
+  esac
+done
 
 PY=${PYTHON:-python3}
 VENV=${GRT_VENV:-.venv}
@@ -101,5 +110,26 @@ if [ "${GRT_SKIP_CHROMIUM:-0}" != 1 ] && ! command -v chromium >/dev/null 2>&1 &
   SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   { $SUDO apt-get update -qq && $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } \
     || log "chromium could not be installed: the browser test will be skipped"
+fi
+# ---------------------------------------------------------------- motion planning (opt-in)
+# ManiSkill's motion-planning solutions (policy=motion_planner) need mplib, which ManiSkill installs (0.1.1),
+# but every mplib wheel (0.1.0, 0.1.1, 0.2.1) crashes in Planner() under numpy 2. numpy 1.26.4 goes into a
+# folder of its own that only the simulator workers running that policy put first on their path
+# (grt/evaluators/worker_env.py); GRT's main process keeps its numpy 2.
+MP_DIR=${GRT_MOTIONPLANNING_DIR:-.motionplanning}
+MP_NUMPY="numpy==1.26.4"
+if [ "$MOTIONPLANNING" = 1 ]; then
+  if [ -f "$MP_DIR/.grt-stamp" ] && [ "$(cat "$MP_DIR/.grt-stamp")" = "$MP_NUMPY" ]; then
+    log "motion planning: $MP_NUMPY in $MP_DIR up to date"
+  else
+    log "motion planning: installing $MP_NUMPY into $MP_DIR (for the workers of policy=motion_planner)"
+    rm -rf "$MP_DIR.tmp"
+    "$VENV/bin/python" -m pip install -q --target "$MP_DIR.tmp" --no-deps "$MP_NUMPY"
+    "$VENV/bin/python" -m pip install -q "mplib==0.1.1"   # normally there already (a ManiSkill dependency)
+    rm -rf "$MP_DIR" && mv "$MP_DIR.tmp" "$MP_DIR"
+    echo "$MP_NUMPY" > "$MP_DIR/.grt-stamp"
+  fi
+  PYTHONPATH="$MP_DIR" "$VENV/bin/python" -c 'import numpy, mplib; assert numpy.__version__ == "1.26.4"' \
+    || die "motion planning: numpy 1.26.4 and mplib do not import together from $MP_DIR; delete it and re-run"
 fi
 log "done: $("$VENV/bin/python" -c 'import torch, grt; print("torch", torch.__version__, "| grt", grt.__version__)')"

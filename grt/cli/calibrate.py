@@ -14,13 +14,13 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
 from grt.config import plain
 from grt.console import progress
 from grt.evaluators.collision import make_collision
+from grt.evaluators.worker_env import run_in_worker, worker_path
 from grt.geometry.mesh import load_mesh
 from grt.geometry.prepare import MeshSettings
 from grt.redteam import episode_seeds
@@ -29,7 +29,6 @@ from grt.tasks import TaskInputError, preflight, session_class, task_object
 
 def calibrate_task(cfg: DictConfig, out_dir: Path) -> dict:
     """Calibrate ``cfg.task`` with ``cfg.policy`` on ``cfg.trials`` seeds; returns ``calibration.json``'s record."""
-    from grt.tasks.maniskill.calibrate import calibrate
     from grt.tasks.maniskill.session import ManiSkillSession
 
     task = plain(cfg.task)
@@ -39,13 +38,10 @@ def calibrate_task(cfg: DictConfig, out_dir: Path) -> dict:
     mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), settings=MeshSettings.from_config(cfg.mesh))
     preflight(task, plain(cfg.policy), mesh)
     parts = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", int(cfg.max_hull_vertices)).parts(mesh)
-    session = instantiate(cfg.task.session, policy=instantiate(cfg.policy), _convert_="all")
     seeds = episode_seeds(int(cfg.seed), int(cfg.trials))
-    try:
-        with progress(2 * len(seeds), "calibrate (stock, then swap)", "trial") as bar:
-            result = calibrate(session, mesh, parts, seeds, on_trial=lambda: bar.update(1))
-    finally:
-        session.close()
+    args = (task, plain(cfg.policy), mesh.vertices, mesh.faces, parts, seeds)
+    folders = worker_path(plain(cfg.policy))  # a policy with a Python of its own runs in a process started with it
+    result = run_in_worker(folders, _calibrate_session, *args) if folders else _calibrate_session(*args)
     record = {"command": " ".join(["python -m grt.calibrate", *sys.argv[1:]]), "task": cfg.task.name,
               "env_id": task.get("env_id"), "actor": task["session"].get("actor"), "object": str(cfg.object),
               "policy": plain(cfg.policy), "parts": len(parts), **result}
@@ -53,6 +49,22 @@ def calibrate_task(cfg: DictConfig, out_dir: Path) -> dict:
     (out_dir / "calibration.json").write_text(json.dumps(record, indent=1))
     record["saved"] = str(out_dir / "calibration.json")
     return record
+
+
+def _calibrate_session(task: dict, policy: dict, vertices, faces, parts, seeds: list[int]) -> dict:
+    """Build the task's session with the policy and calibrate it (in this process or a worker's)."""
+    import trimesh
+
+    from grt.evaluators.pool import build_session
+    from grt.tasks.maniskill.calibrate import calibrate
+
+    session = build_session(task, policy)
+    try:
+        with progress(2 * len(seeds), "calibrate (stock, then swap)", "trial") as bar:
+            return calibrate(session, trimesh.Trimesh(vertices, faces, process=False), parts, seeds,
+                             on_trial=lambda: bar.update(1))
+    finally:
+        session.close()
 
 
 def figures(r: dict) -> str:

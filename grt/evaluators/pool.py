@@ -38,6 +38,7 @@ import numpy as np
 import trimesh
 
 from grt.evaluators.base import SIM_ERROR
+from grt.evaluators.worker_env import WorkerPathError, accept_numpy2_pickles, spawn_path, worker_path
 from grt.policies.base import PolicyInterrupted, PolicyServerError, PolicyUnavailable
 from grt.targets import worker_error
 from grt.tasks.base import TrialOutcome
@@ -90,6 +91,7 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
     # ... and so is a scheduler's warning before its time limit: SLURM signals every process of the job step
     # (submitit's --signal=USR2@120, conf/hydra/launcher/slurm.yaml), whose default action would kill us
     signal.signal(signal.SIGUSR2, signal.SIG_IGN)
+    accept_numpy2_pickles()  # a policy's own numpy 1.x (worker_path) reads the parent's jobs
     try:
         session = build_session(task, policy)
     except BaseException as exc:
@@ -343,6 +345,10 @@ class WorkerPool:
         threads: CPU threads per worker for BLAS/OpenMP, torch and the lavapipe renderer (``None``:
             the libraries' defaults). Workers already fill the cores; more threads only contend.
 
+    A policy config with ``worker_path`` (:mod:`grt.evaluators.worker_env`) gets workers that start with those
+    folders first on their import path (``spawn`` only: a ``forkserver`` child is forked from a server that
+    has imported its libraries already).
+
     More workers than the cores this process may use, or than the available memory holds at
     :data:`WORKER_MB` each, are not started: the pool warns with the numbers and runs as many as fit
     (``limits``, see :func:`worker_limits`); results do not depend on the number of workers.
@@ -356,6 +362,11 @@ class WorkerPool:
         if start_method not in ("spawn", "forkserver"):
             raise ValueError(f"start_method must be 'spawn' or 'forkserver', got {start_method!r}")
         self.task, self.policy = task, policy
+        self.path = worker_path(policy)
+        if self.path and start_method != "spawn":
+            raise WorkerPathError(f"evaluator.start_method={start_method}: the policy's workers start with their "
+                                  f"own {', '.join(self.path)} first on their path, which only a spawned worker "
+                                  "takes; set evaluator.start_method=spawn")
         self.limits = worker_limits(workers)
         if self.limits["used"] < workers:
             free = self.limits["available_mb"]
@@ -377,7 +388,7 @@ class WorkerPool:
         parent, child = self.ctx.Pipe(duplex=True)
         proc = self.ctx.Process(target=worker_main, args=(self.task, self.policy, child, self.threads),
                                 daemon=True)
-        with _thread_limits(self.threads):
+        with _thread_limits(self.threads), spawn_path(self.path):
             proc.start()
         child.close()
         return _Worker(proc, parent)

@@ -61,9 +61,11 @@ class SimActor:
                  "ray": ray.__version__}
         try:
             from grt.evaluators import pool
+            from grt.evaluators.worker_env import accept_numpy2_pickles
         except BaseException as exc:
             return {**where, "status": "missing" if _missing_module(exc) else "fatal",
                     "module": _missing_module(exc), "error": traceback.format_exc()}
+        accept_numpy2_pickles()  # a policy's own numpy 1.x (worker_path) reads the driver's geometry
         try:
             self.session = pool.build_session(self.task, self.policy)
         except BaseException as exc:

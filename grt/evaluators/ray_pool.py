@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from grt.errors import UserError
 from grt.evaluators.pool import THREAD_VARIABLES, Job, blame_first_seed, worker_limits
 from grt.evaluators.sim import SimEvaluator
+from grt.evaluators.worker_env import python_path, worker_path
 from grt.policies.base import PolicyServerError
 from grt.targets import worker_error
 from grt.tasks.base import TrialOutcome
@@ -225,6 +226,9 @@ class RayPool:
         if self.address == "local":  # this machine: the driver's sys.path, as the pool's spawned workers have it
             env = self.runtime_env.setdefault("env_vars", {})
             env.setdefault("PYTHONPATH", os.pathsep.join(p for p in sys.path if p and os.path.isdir(p)))
+        if folders := worker_path(policy):  # the policy's own libraries first (grt/evaluators/worker_env.py)
+            env = self.runtime_env["env_vars"] = dict(self.runtime_env.get("env_vars") or {})
+            env["PYTHONPATH"] = python_path(folders, env.get("PYTHONPATH"))
         if self.address == "local":  # ... and bounded by its cores and memory, as the pool is
             self.limits = worker_limits(workers)
             if self.limits["used"] < workers:

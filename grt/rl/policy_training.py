@@ -61,7 +61,8 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
     parts = collision.parts(mesh)
     task, train_cfg = plain(cfg.task), plain(cfg.train)
     env = TaskVecEnv(task, [Shape.of(mesh, parts, str(cfg.object))], num_envs=train_cfg["num_envs"],
-                     workers=train_cfg["workers"], seed=train_cfg["seed"], max_steps=train_cfg["max_steps"])
+                     workers=train_cfg["workers"], seed=train_cfg["seed"], max_steps=train_cfg["max_steps"],
+                     success_bonus=float(train_cfg.get("success_bonus") or 0.0))
     bc = train_cfg.get("bc")
     logger.start(out_dir, name=f"train-{train_cfg['name']}", config=plain(cfg))
     val = train_cfg.get("validation") or {}

@@ -137,10 +137,15 @@ class TaskVecEnv(VecEnv):
         weights: probability of each shape per episode (default: uniform).
         max_steps: control steps per training episode (``None``: the session's ``max_steps``).
         device: torch device of the returned tensors.
+        success_bonus: reward added on the step an episode succeeds (it ends there). A dense reward paid every
+            step makes ending early a loss: on PushCube-v1 PPO learned to hover by the goal (return 9 -> 15,
+            success 0.9 -> 0.25 in 20 iterations) until the success was worth what it ends (r_max / (1 - gamma)).
     """
 
     def __init__(self, task: dict, shapes: list[Shape], num_envs: int = 8, workers: int = 2, seed: int = 0,
-                 weights: list[float] | None = None, max_steps: int | None = None, device: str = "cpu"):
+                 weights: list[float] | None = None, max_steps: int | None = None, device: str = "cpu",
+                 success_bonus: float = 0.0):
+        self.success_bonus = float(success_bonus)
         if not shapes:
             raise ValueError("TaskVecEnv needs at least one shape")
         w = np.ones(len(shapes)) if weights is None else np.asarray(weights, np.float64)
@@ -180,7 +185,9 @@ class TaskVecEnv(VecEnv):
         self._obs = self._stack(first)
         self.max_episode_length = int(max_steps or 256)
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=device)
-        self.num_actions = int(session_class(task).num_actions)  # the session class's, its one place
+        cls = session_class(task)  # the session class's, its one place (an env-wrapping class asks its env)
+        kwargs = {k: v for k, v in task["session"].items() if k != "_target_"}
+        self.num_actions = int(cls.action_size(**kwargs) if hasattr(cls, "action_size") else cls.num_actions)
         self.episodes: list[dict] = []  # every ended episode (success, length, shape, return)
 
     def _call(self, cmd: str, actions: np.ndarray | None = None):
@@ -206,6 +213,8 @@ class TaskVecEnv(VecEnv):
     def step(self, actions: torch.Tensor):
         acts = actions.detach().cpu().numpy().astype(np.float32)
         obs, rew, term, trunc, ended = self._call("step", acts)
+        if self.success_bonus:
+            rew = rew + self.success_bonus * np.asarray(term, np.float32)
         self._obs = self._stack(obs)
         dones = torch.as_tensor(term | trunc, device=self.device)
         self.episode_length_buf += 1

@@ -109,3 +109,21 @@ def test_a_frozen_normalizer_keeps_its_statistics_through_ppo(reach_task, box_sh
     train(env2, TrainSpec(train_cfg, tmp_path / "free", "reach", reach_task, iterations=3, save_interval=1))
     free = torch.load(tmp_path / "free" / "last.pt", map_location="cpu", weights_only=False)["actor_state_dict"]
     assert float(free["obs_normalizer.count"]) > 0.0
+
+
+def test_a_success_bonus_is_paid_on_the_step_an_episode_succeeds_and_only_then(reach_task, box_shape):
+    """A dense reward paid every step makes ending early a loss (PPO learned to hover by PushCube's goal); the
+    bonus makes the success worth what it ends."""
+    rewards = {}
+    for bonus in (0.0, 10.0):
+        env = TaskVecEnv(reach_task, [box_shape], num_envs=2, workers=0, seed=3, success_bonus=bonus)
+        got = []
+        for _ in range(30):
+            goal = env.get_observations()["state"][:, 1:2]
+            _, rew, dones, extras = env.step(torch.clamp(goal / 0.1, -1, 1))  # straight to the goal
+            got.append((rew.clone(), (dones.bool() & ~extras["time_outs"].bool()).clone()))
+        env.close()
+        rewards[bonus] = got
+    succeeded = torch.stack([d for _, d in rewards[0.0]])
+    diff = torch.stack([r for r, _ in rewards[10.0]]) - torch.stack([r for r, _ in rewards[0.0]])
+    assert succeeded.any() and torch.allclose(diff, 10.0 * succeeded.float())

@@ -1,0 +1,43 @@
+"""A session that reports which numpy its worker runs and what crossed the pipe (the worker-path tests).
+
+Imported by spawned workers that may run numpy 1.26 (``worker_path``): nothing here may need numpy 2.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from grt.tasks.base import TaskSession, TrialOutcome
+
+
+class ProbePolicy:
+    """A policy config with ``worker_path`` (the evaluator reads it; the class is given it too)."""
+
+    def __init__(self, worker_path=None):
+        self.worker_path = worker_path
+
+
+class ProbeSession(TaskSession):
+    """Sums the job's geometry; each trial answers with numpy objects of this worker's numpy."""
+
+    def __init__(self, policy: ProbePolicy):
+        self.policy, self.total = policy, None
+
+    def load_object(self, mesh, parts) -> None:
+        self.total = float(np.sum(mesh.vertices)) + float(np.sum(mesh.faces)) + sum(float(np.sum(p)) for p in parts)
+
+    def run_trial(self, seed: int) -> TrialOutcome:
+        return TrialOutcome(seed, np.float64(seed) / 10, bool(np.bool_(seed % 2 == 0)), "success",
+                            {"numpy": np.__version__, "total": np.float64(self.total), "array": np.arange(3.0) * seed,
+                             "ints": np.arange(2, dtype=np.int32)})
+
+
+def numpy_version(offset: float) -> tuple[str, float]:
+    """What :func:`grt.evaluators.worker_env.run_in_worker` runs in the tests: this process's numpy, and a sum."""
+    return np.__version__, float(np.sum(np.arange(4.0)) + offset)
+
+
+def refuse(reason: str) -> None:
+    from grt.errors import UserError
+
+    raise UserError(reason)

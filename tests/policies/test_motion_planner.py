@@ -1,0 +1,68 @@
+"""ManiSkill's motion-planning solutions as a policy (grt/policies/motion_planner.py): through grt.evaluate
+they run in simulator workers on numpy 1.26 (``make motionplanning``), GRT's main process on numpy 2; without
+the set-up, on a task in another control mode or an env without a solution, one line before any simulation.
+
+The run needs the set-up's folder (``make test`` makes it); without it that test is skipped and says so.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from grt.policies.motion_planner import (
+    MotionPlannerPolicy,
+    MotionPlanningSetupError,
+    NoSolutionError,
+    has_solution,
+    solution_module,
+)
+from tests.runner.conftest import refused_by_evaluate
+
+ROOT = Path(__file__).resolve().parents[2]
+MP_DIR = ROOT / ".motionplanning"
+needs_setup = pytest.mark.skipif(not (MP_DIR / "numpy").is_dir(),
+                                 reason=f"no numpy 1.26 in {MP_DIR}: run `make motionplanning` (make test does)")
+
+
+def _evaluate(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "grt.evaluate", "task=pick_cube", "policy=motion_planner", *args],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+
+
+@needs_setup
+@pytest.mark.sim
+def test_the_planner_solves_pick_cube_in_its_own_numpy_workers(tmp_path):
+    proc = _evaluate("task.session.control_mode=pd_joint_pos", "budget.trials=2", "budget.workers=1",
+                     f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+    saved = json.loads((tmp_path / "evaluation.json").read_text())
+    assert saved["outcomes"] == {"success": 2}, saved["outcomes"]  # ManiSkill's solution: 10/10 on the stock cube
+    assert all(t["info"]["steps"] > 50 for t in saved["trials"])  # the planner drove the env (plans of ~100 steps)
+
+
+def test_without_the_setup_the_planner_is_one_line_naming_it(tmp_path, capsys):
+    code, err = refused_by_evaluate(["task=pick_cube", "policy=motion_planner", "task.session.control_mode=pd_joint_pos",
+                                     f"paths.motionplanning={tmp_path / 'missing'}"], tmp_path / "out", capsys)
+    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    assert code == 2 and "Traceback" not in err and len(errors) == 1, err
+    assert "`make motionplanning`" in errors[0] and "numpy 2" in errors[0]
+    assert not (tmp_path / "out" / "evaluation.json").exists()
+
+
+@needs_setup
+def test_another_control_mode_or_an_env_without_a_solution_is_refused():
+    with pytest.raises(NoSolutionError, match="task.session.control_mode=pd_joint_pos"):
+        MotionPlannerPolicy(worker_path=str(MP_DIR), env_id="PickCube-v1", control_mode="pd_ee_delta_pos")
+    with pytest.raises(NoSolutionError, match=r"no motion-planning solution for PushT-v1 \(it has: .*PickCube-v1"):
+        MotionPlannerPolicy(worker_path=str(MP_DIR), env_id="PushT-v1")
+    with pytest.raises(MotionPlanningSetupError, match="names no worker_path"):
+        MotionPlannerPolicy()
+    MotionPlannerPolicy(worker_path=str(MP_DIR), env_id="PegInsertionSide-v1", control_mode="pd_joint_pos")
+    assert solution_module("PegInsertionSide-v1").endswith("solutions.peg_insertion_side")
+    assert solution_module("DrawSVG-v1").endswith("solutions.draw_svg") and has_solution("DrawSVG-v1")
+    assert "mplib" not in sys.modules  # nothing above imported the planner into this (numpy 2) process
