@@ -82,7 +82,8 @@ def render_mesh_shape(mesh: trimesh.Trimesh, color, pose: sapien.Pose | None = N
 
 def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], name: str,
                        friction: float = 1.0, density: float = 500.0,
-                       color: tuple[float, float, float] = (0.8, 0.45, 0.2), initial_z: float = 0.0):
+                       color: tuple[float, float, float] = (0.8, 0.45, 0.2), initial_z: float = 0.0,
+                       scene_idxs: list[int] | None = None):
     """Build a dynamic actor: visual = ``mesh``, collision = ``parts``, all from memory.
 
     Args:
@@ -94,6 +95,8 @@ def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], na
         density: kg/m^3.
         color: RGB in [0, 1] of the visual.
         initial_z: z (m) of the actor frame at creation.
+        scene_idxs: the parallel sub-scenes to build it in (``None``: all); one index per object when every
+            sub-scene holds its own (then ``Actor.merge`` the actors, as ManiSkill's ``pick_single_ycb.py``).
 
     Returns:
         The ManiSkill ``Actor``.
@@ -109,6 +112,8 @@ def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], na
     if scene.can_render():
         builder._procedural_shapes.append(render_mesh_shape(mesh, color))
     builder.initial_pose = sapien.Pose(p=[0.0, 0.0, initial_z])
+    if scene_idxs is not None:
+        builder.set_scene_idxs(list(scene_idxs))
     actor = builder.build(name=name)
     built = len(actor._objs[0].find_component_by_type(physx.PhysxRigidDynamicComponent).collision_shapes)
     if built != len(parts) or builder.num_built_shapes != len(parts):
