@@ -22,6 +22,7 @@ from omegaconf import DictConfig
 from grt.config import plain
 from grt.confirm import confirm
 from grt.console import progress
+from grt.evaluators.base import evaluator_preflight
 from grt.fileio import write_text_atomic
 from grt.geometry.complexity import angular_deficit_entropy
 from grt.geometry.deform import ShapeDeformer, deformer_options
@@ -61,6 +62,7 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
     check_object_size(mesh)  # a mesh in millimetres: refused before any file
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # wrong plug, policy kind or checkpoint: likewise
+    evaluator_preflight(plain(cfg.evaluator), plain(cfg.task), plain(cfg.policy))  # evaluator=gpu without CUDA, ...
     save_run_config(cfg, run_dir)
     handle_set = _select_handles(cfg, mesh, run_dir)
     save_nominal(run_dir, mesh)  # the mesh every CrashShape deforms (its vertex order, meters)
