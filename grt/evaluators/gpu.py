@@ -178,6 +178,9 @@ class GpuEvaluator(Evaluator):
         if backend == "physx_cuda":
             _require_cuda()
         self.task, self.policy_cfg = task, policy
+        from grt.tasks import session_class
+
+        self.session_class = session_class(task)
         self.recreate_every, self.render_backend = int(recreate_every), str(render_backend)
         self.sim_config = dict(sim_config or {})
         self.collision = make_collision(collision, nominal, coacd, cache_dir, max_hull_vertices)
@@ -186,7 +189,7 @@ class GpuEvaluator(Evaluator):
         self.session, self._uses = None, 0
         self.collision_s = self.run_s = 0.0
         self.stats = {"batches": 0, "sub_scenes": 0, "envs_built": 0, "build_s": 0.0, "episodes_s": 0.0,
-                      "gpu_free_mb": []}
+                      "gpu_free_mb": [], "hulls": 0, "max_hull_inflation_mm": 0.0}
 
     # ------------------------------------------------------------------------------- interface
     @classmethod
@@ -219,6 +222,7 @@ class GpuEvaluator(Evaluator):
         if parts is not None and len(parts) != len(meshes):
             raise ValueError(f"parts must give one list per mesh ({len(meshes)}), got {len(parts)}")
         parts, errors = self._collision_parts(meshes) if parts is None else (list(parts), {})
+        errors.update(self._refused(meshes, errors))
         acting = self.policy if policy is None else self._build_policy(policy)
         trials: list[dict[int, TrialOutcome]] = [{} for _ in meshes]
         wall = np.zeros(len(meshes))
@@ -293,6 +297,10 @@ class GpuEvaluator(Evaluator):
         self.stats["sub_scenes"] += len(batch)
         self.stats["build_s"] += built - begin
         self.stats["episodes_s"] += done - built
+        tally = session.hull_tally()  # how much PhysX grew the hulls (on the GPU: 64 vertices, 64 polygons)
+        self.stats["hulls"] += int(tally.get("parts", 0))
+        self.stats["max_hull_inflation_mm"] = max(self.stats["max_hull_inflation_mm"],
+                                                  1000.0 * float(tally.get("max_inflation_m", 0.0)))
         if self.backend == "physx_cuda":
             import torch
 
@@ -322,6 +330,7 @@ class GpuEvaluator(Evaluator):
         return instantiate(policy, **extra)
 
     def _collision_parts(self, meshes: list[trimesh.Trimesh]) -> tuple[list[list[np.ndarray]], dict[int, str]]:
+        """Parts per mesh; a mesh whose decomposition fails gets no parts and an error reason."""
         start = time.perf_counter()
         parts, errors = [], {}
         for i, mesh in enumerate(meshes):
@@ -333,6 +342,20 @@ class GpuEvaluator(Evaluator):
                 errors[i] = f"collision geometry failed: {exc}"
         self.collision_s += time.perf_counter() - start
         return parts, errors
+
+    def _refused(self, meshes: list[trimesh.Trimesh], skip: dict[int, str]) -> dict[int, str]:
+        """Why the task would not load a mesh (:meth:`BatchedEpisodes.check_candidate`), by index: such a
+        candidate gets no sub-scene, its trials are ``sim_error``s as a CPU worker records them."""
+        kwargs = {k: v for k, v in self.task["session"].items() if k != "_target_"}
+        errors = {}
+        for i, mesh in enumerate(meshes):
+            if i in skip:
+                continue
+            try:
+                self.session_class.check_candidate(mesh, **kwargs)
+            except Exception as exc:  # noqa: BLE001 - whatever the task refuses
+                errors[i] = f"load_object failed: {type(exc).__name__}: {exc}"
+        return errors
 
 
 def _require_cuda() -> None:

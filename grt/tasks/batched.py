@@ -72,6 +72,12 @@ class BatchedEpisodes:
         ManiSkill's CPU simulation runs one (``physx_cpu`` refuses ``num_envs > 1``)."""
         return 1 if sim_backend == "physx_cpu" else None
 
+    @classmethod
+    def check_candidate(cls, mesh: trimesh.Trimesh, **session_kwargs) -> None:
+        """Raise if :meth:`load_objects` would refuse ``mesh`` (as ``load_object`` would on the CPU), so that an
+        evaluator can count one candidate's trials as failed before it shares an env with the others."""
+        return None
+
     # --- what a subclass provides --------------------------------------------------------------------
     @abstractmethod
     def load_objects(self, objects: Objects, assignment: Sequence[int]) -> None:
@@ -113,6 +119,14 @@ class BatchedEpisodes:
                 if errors[i] is None:
                     errors[i] = f"FloatingPointError: non-finite {key} in the simulation state"
         return errors
+
+    def clip_actions(self, actions: np.ndarray) -> np.ndarray:
+        """Actions ``(N, A)`` clipped to what the env takes (GRT's tasks: [-1, 1], as ``EpisodeSession.step``)."""
+        return np.clip(actions, -1.0, 1.0)
+
+    def hull_tally(self) -> dict:
+        """The last scene build's convex hulls: ``parts`` built and the most PhysX grew one (``max_inflation_m``)."""
+        return {}
 
     def hopeless_batch(self, info: dict[str, np.ndarray]) -> np.ndarray:
         """Per sub-scene, whether nothing the policy does can succeed any more (ends an evaluation early)."""
@@ -192,7 +206,7 @@ class BatchedEpisodes:
         """One control step of every sub-scene; ends (judges) those whose episode is over."""
         running = np.array([e is None for e in ended])
         obs = self.observe_batch()
-        actions = np.clip(np.asarray(policy.act(obs), np.float32).reshape(self.num_envs, self.num_actions), -1.0, 1.0)
+        actions = self.clip_actions(np.asarray(policy.act(obs), np.float32).reshape(self.num_envs, self.num_actions))
         actions[~running] = 0.0  # an ended episode idles until the others end
         reward, success, info = self._step_batch(actions)
         steps[running] += 1

@@ -173,6 +173,9 @@ class DrawerSession(BatchedEpisodes, EpisodeSession):
     def observe_batch(self) -> dict[str, np.ndarray]:
         return self.unwrapped.task_obs()
 
+    def hull_tally(self) -> dict:
+        return dict(self.unwrapped.hull_tally)
+
     def score(self, success: bool, info: dict) -> float:
         return float(info["opening"])
 

@@ -54,7 +54,7 @@ from sapien import physx
 from grt.policies.drawer_action import APPROACH, ARM_DELTA, FINGER_DELTA, GRASP_ROT
 from grt.tasks.batched import to_numpy
 from grt.tasks.env_base import TaskEnv
-from grt.tasks.scene import attach_convex_parts, render_mesh_shape
+from grt.tasks.scene import CPU_INFLATION, GPU_INFLATION, attach_convex_parts, new_tally, render_mesh_shape
 
 STATE_DIM = 23
 MAX_OPENING = 0.39    # m (paper)
@@ -225,10 +225,11 @@ class DrawerEnv(TaskEnv):
     # ------------------------------------------------------------------ scene
     def _load_scene(self, options: dict):
         self.ground = build_ground(self.scene)
-        cabinets, shapes = [], []
+        cabinets, shapes, self.hull_tally = [], [], new_tally()
         for i, j in enumerate(self.object_of_env()):
             art, built = build_cabinet(self.scene, self.cabinet, self.handle_meshes[j], self.handle_parts[j],
-                                       self.handle_friction, self.handle_density, scene_idxs=[i], name=f"cabinet_{i}")
+                                       self.handle_friction, self.handle_density, scene_idxs=[i], name=f"cabinet_{i}",
+                                       tally=self.hull_tally)
             self.remove_from_state_dict_registry(art)
             cabinets.append(art)
             shapes.append(built)
@@ -334,10 +335,11 @@ class DrawerEnv(TaskEnv):
 
 def build_cabinet(scene, spec: CabinetSpec, handle: trimesh.Trimesh, parts: list[np.ndarray],
                   handle_friction: float = 1.0, handle_density: float = 2000.0, scene_idxs: list[int] | None = None,
-                  name: str = "cabinet"):
+                  name: str = "cabinet", tally: dict | None = None):
     """Build the cabinet articulation (fixed body, one prismatic drawer carrying the handle).
 
-    ``scene_idxs``: the parallel sub-scenes to build it in (``None``: all); ``name``: the articulation's.
+    ``scene_idxs``: the parallel sub-scenes to build it in (``None``: all); ``name``: the articulation's;
+    ``tally``: a :func:`grt.tasks.scene.new_tally` record of the handle's hulls.
 
     Returns:
         ``(articulation, number of handle collision shapes built)``.
@@ -372,7 +374,8 @@ def build_cabinet(scene, spec: CabinetSpec, handle: trimesh.Trimesh, parts: list
 
     def build_with_handle(link_parent=None):
         component = base_build(link_parent)
-        counted["n"] = attach_convex_parts(component, posed, metal, handle_density, drawer.collision_groups)
+        counted["n"] = attach_convex_parts(component, posed, metal, handle_density, drawer.collision_groups,
+                                           GPU_INFLATION if scene.gpu_sim_enabled else CPU_INFLATION, tally)
         return component
 
     drawer.build_physx_component = build_with_handle

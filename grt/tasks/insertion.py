@@ -149,6 +149,12 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
             raise PlugFitError(f"the plug's head is {2 * socket.outer_radius * 1000:.0f} mm across: too big for a "
                                "tabletop socket; is the mesh in meters (object_scale) and head_length right?")
 
+    @classmethod
+    def check_candidate(cls, mesh: trimesh.Trimesh, socket_object: str = "usb_plug", head_length: float | None = None,
+                        grip_height: float | None = None, **_) -> None:
+        """The check :meth:`load_objects` makes: the plug's grip fits the gripper."""
+        _check_grip(mesh, plug_geometry(str(socket_object), head_length, grip_height)[1])
+
     def load_objects(self, objects: Objects, assignment) -> None:
         for mesh, _ in objects:
             _check_grip(mesh, self.grip_height)
@@ -176,6 +182,9 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
 
     def observe_batch(self) -> dict[str, np.ndarray]:
         return self.unwrapped.task_obs()
+
+    def hull_tally(self) -> dict:
+        return dict(self.unwrapped.hull_tally)
 
     def judge(self, success: bool, info: dict) -> str:
         if success:

@@ -60,7 +60,7 @@ from scipy.spatial.transform import Rotation
 from grt.tasks.batched import to_numpy
 from grt.tasks.env_base import TaskEnv
 from grt.tasks.motion import PandaIK
-from grt.tasks.scene import InMemoryActorBuilder, build_object_actor
+from grt.tasks.scene import InMemoryActorBuilder, build_object_actor, new_tally
 from grt.tasks.socket import SocketGeometry, build_socket, grip_half_width
 
 ACTION_SCALE = 0.01  # m and rad per unit action (paper: delta pose scaled by 0.01)
@@ -219,7 +219,8 @@ class InsertEnv(TaskEnv):
         self.table_scene = TableSceneBuilder(self, robot_init_qpos_noise=0.0)
         self.table_scene.build()
         material = physx.PhysxMaterial(static_friction=0.5, dynamic_friction=0.5, restitution=0.0)
-        builder = InMemoryActorBuilder(self.socket.parts, material, density=1000.0)
+        self.hull_tally = new_tally()
+        builder = InMemoryActorBuilder(self.socket.parts, material, density=1000.0, tally=self.hull_tally)
         builder.set_scene(self.scene)
         if self.scene.can_render():
             m = self.socket.mesh
@@ -232,7 +233,7 @@ class InsertEnv(TaskEnv):
         self._env_object = self.object_of_env()
         plugs = [build_object_actor(self.scene, self.plug_meshes[j], self.plug_parts[j], f"grt_plug_{i}",
                                     friction=self.plug_friction, density=self.plug_density, initial_z=0.3,
-                                    scene_idxs=[i])
+                                    scene_idxs=[i], tally=self.hull_tally)
                  for i, j in enumerate(self._env_object)]
         for actor in plugs:
             self.remove_from_state_dict_registry(actor)

@@ -175,14 +175,21 @@ SERVO = {"_target_": "grt.policies.servo.ServoInsertionPolicy"}
 @pytest.mark.sim
 def test_on_physx_cpu_the_gpu_path_scores_each_candidate_as_its_own_trials_do():
     """The whole evaluator=gpu path on ManiSkill's CPU simulation (one sub-scene per env): a nominal and a
-    deformed plug give, trial for trial, what the insertion session gives for each alone."""
+    deformed plug give, trial for trial, what the insertion session gives for each alone; a plug the task
+    refuses to load (too wide for the fingers) fails its trials as a CPU worker records them."""
     from grt.policies.servo import ServoInsertionPolicy
     from grt.tasks.insertion import InsertionSession
 
     meshes, parts = _plugs()
+    wide = meshes[0].copy()
+    wide.apply_scale([1.0, 9.0, 1.0])
     seeds = [3, 4]
     with GpuEvaluator(INSERTION, SERVO, nominal=meshes[0], backend="physx_cpu", max_envs=1, progress=False) as ev:
-        results = ev.evaluate(meshes, seeds, parts=parts)
+        results = ev.evaluate([*meshes, wide], seeds, parts=[*parts, parts[0]])
+        assert ev.backend_info()["batches"] == 4  # the refused plug takes no sub-scene
+    refused = results.pop()
+    assert refused.outcomes == {"sim_error": 2} and refused.trials[0].info["error"].startswith(
+        "load_object failed: PlugFitError: the plug's grip is"), refused.trials[0].info
     session = InsertionSession(ServoInsertionPolicy(), socket_object="usb_plug", cloud_points=0, max_steps=40)
     try:
         for mesh, p, result in zip(meshes, parts, results, strict=True):
@@ -219,3 +226,20 @@ def test_on_the_gpu_a_population_larger_than_max_envs_is_split_and_the_env_rebui
         info = ev.backend_info()
     assert info["batches"] == 3 and info["envs_built"] == 2
     assert results[0].success_rate > results[1].success_rate, [r.outcomes for r in results]
+
+
+def test_a_cpu_run_is_not_resumed_on_the_gpu_nor_the_reverse(tmp_path):
+    """One journal, one physics: a run scored by CPU workers goes on with CPU workers (or evaluator=gpu on
+    physx_cpu, whose trials are theirs bit for bit), not on the GPU."""
+    from grt.runfolder import ResumeError, own_config, resume_overrides
+    from tests.runner.conftest import compose_run
+
+    run_dir = Path(__file__).resolve().parents[1] / "data" / "run_format1_toy"
+
+    def resumed(*overrides: str):
+        return own_config(compose_run([*resume_overrides([f"resume={run_dir}", *overrides]),
+                                       f"paths.output_dir={tmp_path}"]))
+
+    with pytest.raises(ResumeError, match="CPU workers, this command would go on with evaluator=gpu"):
+        resumed("evaluator=gpu")
+    assert resumed("evaluator=gpu", "evaluator.backend=physx_cpu", "evaluator.max_envs=1").evaluator.max_envs == 1
