@@ -31,6 +31,7 @@ never pickle, never code from the peer). Messages, all maps with a ``type``:
 from __future__ import annotations
 
 import hmac
+import inspect
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -40,6 +41,10 @@ import numpy as np
 from websockets.exceptions import ConnectionClosed
 from websockets.sync.client import connect as ws_connect
 from websockets.sync.server import serve as ws_serve
+
+# websockets 17.1 deprecated a connection opened outside a `with` block unless `legacy=True` says so (a test
+# fails on that warning); 15-17.0 have no such flag. The client keeps one connection open across calls.
+_LEGACY = {"legacy": True} if "legacy" in inspect.signature(ws_connect).parameters else {}
 
 PROTOCOL = "grt-policy/1"
 #: Largest message either side accepts (bytes): a 20,000-point cloud with viewpoints is ~0.5 MB.
@@ -256,7 +261,7 @@ class PolicyClient:
     def connect(self) -> dict:
         """Open the connection and exchange hellos; returns the server's hello."""
         self.conn = ws_connect(self.url, open_timeout=self.open_timeout, max_size=self.max_message,
-                               compression=None, proxy=None)
+                               compression=None, proxy=None, **_LEGACY)
         try:
             self.conn.send(pack({"type": "hello", "protocol": PROTOCOL, "token": self.token}))
             reply = unpack(self.conn.recv(timeout=self.open_timeout))
