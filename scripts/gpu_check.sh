@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU check of evaluator=gpu (issue 38) as ONE prepared run, ~8 minutes at most, every figure to $OUT:
+# The GPU check of evaluator=gpu (issue 38) as ONE prepared run, 8.5 minutes at most, every figure to $OUT:
 #   1. the tests marked gpu (tests/evaluators/test_gpu.py);
 #   2. insertion_state's nominal success in GPU sub-scenes (128 trials) against the CPU worker pool's (64);
 #   3. trials/s at 512 and 2048 sub-scenes, the CPU pool's beside it (same machine, same run);
@@ -32,16 +32,16 @@ step() {  # step NAME SECONDS COMMAND...: run it under a time limit, log it, rec
 }
 
 { nvidia-smi || true; } >"$OUT/nvidia-smi.txt" 2>&1
-step versions 60 "$PY" -c "import numpy, torch, sapien, mani_skill, sys; print(sys.version); print('numpy', numpy.__version__,
+step versions 30 "$PY" -c "import numpy, torch, sapien, mani_skill, sys; print(sys.version); print('numpy', numpy.__version__,
 'torch', torch.__version__, 'sapien', sapien.__version__, 'mani_skill', mani_skill.__version__, 'cuda',
 torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else '')"
 
 if [ "$BACKEND" = physx_cuda ]; then
-  step tests 100 "$PY" -m pytest -q -p no:cacheprovider -m gpu tests/evaluators/test_gpu.py -rA
-  step nominal 100 "$PY" -m grt.bench gpu nominal --out "$OUT" --trials 128 --cpu-trials 64 --workers "$WORKERS"
-  step throughput 130 "$PY" -m grt.bench gpu throughput --out "$OUT" --sizes 512,2048 --cpu-trials 56 \
+  step tests 90 "$PY" -m pytest -q -p no:cacheprovider -m gpu tests/evaluators/test_gpu.py -rA
+  step nominal 90 "$PY" -m grt.bench gpu nominal --out "$OUT" --trials 128 --cpu-trials 64 --workers "$WORKERS"
+  step throughput 120 "$PY" -m grt.bench gpu throughput --out "$OUT" --sizes 512,2048 --cpu-trials 56 \
     --workers "$WORKERS"
-  step protocol 170 "$PY" -m grt.bench gpu protocol --out "$OUT" --timeout 160
+  step protocol 150 "$PY" -m grt.bench gpu protocol --out "$OUT" --timeout 140
 else  # the CPU fallback of each step, tiny: one sub-scene per env, a few trials, a smoke budget
   step tests 200 "$PY" -m pytest -q -p no:cacheprovider tests/evaluators/test_gpu.py -rA
   step nominal 300 "$PY" -m grt.bench gpu nominal --backend physx_cpu --out "$OUT" --trials 4 --cpu-trials 4 \
@@ -51,5 +51,5 @@ else  # the CPU fallback of each step, tiny: one sub-scene per env, a few trials
   step protocol 400 "$PY" -m grt.bench gpu protocol --backend physx_cpu --out "$OUT" --budget smoke --timeout 390 \
     --overrides "budget.trials=2 budget.population=2 budget.iterations=1 task.session.max_steps=20"
 fi
-step report 60 "$PY" -m grt.bench gpu report --out "$OUT"
+step report 30 "$PY" -m grt.bench gpu report --out "$OUT"
 echo "== done: $OUT"; cat "$OUT/steps.jsonl"

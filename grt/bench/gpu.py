@@ -53,11 +53,17 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(report(out or Path("."))))
         return
     figures = {"nominal": nominal, "throughput": throughput, "protocol": protocol}[args.step](args, out)
+    figures = _save(args, out, figures)
+    print(json.dumps(figures))
+
+
+def _save(args, out: Path | None, figures: dict) -> dict:
+    """``DIR/STEP.json`` with the step's figures so far (a step stopped at its time limit keeps what it had)."""
     figures = {"step": args.step, "backend": args.backend, "device": _device(args.backend), **figures}
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / f"{args.step}.json").write_text(json.dumps(figures, indent=1))
-    print(json.dumps(figures))
+    return figures
 
 
 def _device(backend: str) -> str:
@@ -120,6 +126,7 @@ def nominal(args, out) -> dict:
                        "mean_steps": float(np.mean([t.info.get("steps", 0) for t in gpu.trials])), "evaluator": info}}
     print(f"GPU ({_device(args.backend)}): success {gpu.success_rate:.3f} over "
           f"{len(seeds)} trials {gpu.outcomes} in {gpu_s:.1f} s")
+    _save(args, out, figures)
     if args.cpu_trials:
         cpu = _cpu_pool(args, task, policy, mesh, [mesh], seeds[:args.cpu_trials])
         result = cpu.pop("results")[0]
@@ -159,6 +166,7 @@ def throughput(args, out) -> dict:
                "env_steps_per_s": round(steps / info["episodes_s"], 1) if info["episodes_s"] else None,
                "success_rates": [round(r.success_rate, 3) for r in results], "gpu_free_mb": info["gpu_free_mb"]}
         rows.append(row)
+        _save(args, out, {"policy": args.policy, "candidates": len(meshes), "sizes": rows})
         print(f"{trials:5d} sub-scenes: {row['trials_per_s']:.1f} trials/s ({seconds:.1f} s: rebuild "
               f"{row['build_s']:.1f} s, episodes {row['episodes_s']:.1f} s)")
     figures = {"policy": args.policy, "candidates": len(meshes), "sizes": rows}
@@ -192,7 +200,7 @@ def protocol(args, out) -> dict:
     journal = run_dir / "journal.jsonl"
     done = len(journal.read_text().splitlines()) if journal.exists() else 0
     summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").exists() else {}
-    figures = {"command": " ".join(command[2:]), "exit_code": code, "wall_s": round(wall, 1),
+    figures = {"command": " ".join(command[2:]), "budget": args.budget, "exit_code": code, "wall_s": round(wall, 1),
                "candidates_journaled": done, "timed_out": code is None,
                "summary": {k: summary.get(k) for k in ("s0", "best_score", "final_drop", "wall_s", "evaluator",
                                                         "timings")}, "log_tail": tail}
@@ -216,7 +224,7 @@ def report(out: Path) -> dict:
     lines = [f"# GPU check ({next((f['device'] for f in found.values()), '?')})", ""]
     nom = found.get("nominal")
     if nom:
-        sides = [k for k in ("gpu", "cpu") if k in nom]
+        sides = [k for k in ("gpu", "cpu") if nom.get(k, {}).get("ci95")]
         rates = [nom[k]["success_rate"] for k in sides]
         errs = np.array([[r - nom[k]["ci95"][0], nom[k]["ci95"][1] - r] for k, r in zip(sides, rates, strict=True)]).T
         axes[0].bar([f"{k.upper()} ({nom[k]['trials']})" for k in sides], rates, yerr=errs, capsize=6,
@@ -256,7 +264,7 @@ def report(out: Path) -> dict:
         axes[2].legend(fontsize=8)
         lines.append(f"- paper protocol: {pro['candidates_journaled']} candidates journaled in {pro['wall_s']} s "
                      f"(exit {pro['exit_code']}{', stopped at the timeout' if pro['timed_out'] else ''})")
-    axes[2].set_title("10 x 10 x 128 insertion (s)")
+    axes[2].set_title(f"red-team run, {(pro or {}).get('budget', 'paper')} budget: wall (s)")
     fig.tight_layout()
     fig.savefig(out / "gpu_check.png", dpi=110)
     plt.close(fig)

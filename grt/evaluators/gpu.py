@@ -202,7 +202,7 @@ class GpuEvaluator(Evaluator):
     def start(self, say=lambda line: print(line, flush=True)) -> float:
         """Nothing to start ahead: the env is built for the first population's size; says so once."""
         if say is not None and self.session is None:
-            say(f"evaluator=gpu: {self.backend}, up to {self.max_envs} sub-scenes per env; the simulator is built "
+            say(f"evaluator=gpu: {self.backend}, up to {self.max_envs} sub-scene{'s' * (self.max_envs != 1)} per env; the simulator is built "
                 "for each population (a few seconds per rebuild)")
         return 0.0
 
