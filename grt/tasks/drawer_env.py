@@ -210,7 +210,8 @@ class DrawerEnv(TaskEnv):
         if any(len(parts) == 0 for _, parts in objects):
             raise ValueError("a handle needs at least one convex collision part")
         self.handle_meshes = [mesh for mesh, _ in objects]
-        self.handle_parts = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
+        self.handle_parts_of = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
+        self.handle_mesh, self.handle_parts = self.handle_meshes[0], self.handle_parts_of[0]  # the first handle
         self._assignment = None if assignment is None else np.asarray(assignment, np.int64)
 
     def object_of_env(self) -> np.ndarray:
@@ -227,7 +228,7 @@ class DrawerEnv(TaskEnv):
         self.ground = build_ground(self.scene)
         cabinets, shapes, self.hull_tally = [], [], new_tally()
         for i, j in enumerate(self.object_of_env()):
-            art, built = build_cabinet(self.scene, self.cabinet, self.handle_meshes[j], self.handle_parts[j],
+            art, built = build_cabinet(self.scene, self.cabinet, self.handle_meshes[j], self.handle_parts_of[j],
                                        self.handle_friction, self.handle_density, scene_idxs=[i], name=f"cabinet_{i}",
                                        tally=self.hull_tally)
             self.remove_from_state_dict_registry(art)

@@ -193,7 +193,8 @@ class InsertEnv(TaskEnv):
         if any(len(parts) == 0 for _, parts in objects):
             raise ValueError("a plug needs at least one convex collision part")
         self.plug_meshes = [mesh for mesh, _ in objects]
-        self.plug_parts = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
+        self.plug_parts_of = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
+        self.plug_mesh, self.plug_parts = self.plug_meshes[0], self.plug_parts_of[0]  # the first (one env: the) plug
         self._plug_clouds = np.stack([self._surface_cloud(mesh, self.cloud_points // 2, seed=1)
                                       for mesh in self.plug_meshes])
         self._grip_half_widths = np.array([grip_half_width(mesh, self.grip_height) for mesh in self.plug_meshes])
@@ -231,7 +232,7 @@ class InsertEnv(TaskEnv):
         builder.initial_pose = sapien.Pose(p=[0.0, 0.0, 0.02])
         self.socket_actor = builder.build_kinematic(name="grt_socket")
         self._env_object = self.object_of_env()
-        plugs = [build_object_actor(self.scene, self.plug_meshes[j], self.plug_parts[j], f"grt_plug_{i}",
+        plugs = [build_object_actor(self.scene, self.plug_meshes[j], self.plug_parts_of[j], f"grt_plug_{i}",
                                     friction=self.plug_friction, density=self.plug_density, initial_z=0.3,
                                     scene_idxs=[i], tally=self.hull_tally)
                  for i, j in enumerate(self._env_object)]
