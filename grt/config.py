@@ -22,6 +22,8 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from grt.errors import UserError
+from grt.settings import check_added_keys, check_sections
+from grt.targets import build_error, check_target, targets
 
 
 class ConfigError(UserError):
@@ -131,25 +133,55 @@ def budget_hint(full_key: str) -> str | None:
     return f"{full_key} must be {meta['rule'].accepts} ({meta['meaning']})" if meta else None
 
 
-def validate(cfg: DictConfig) -> DictConfig:
-    """Check a composed root config before any work; the first line of every Hydra app.
+def validate(cfg: DictConfig, classes: tuple[str, ...] | None = None) -> DictConfig:
+    """Check a composed root config before anything is written; the first step of every Hydra app.
 
-    Checks the budget (:func:`check_budget`) and that the optimizer accepts it (CMA-ES needs a
-    population of at least 2), so a bad value is refused before the nominal simulation.
+    Checks the budget (:func:`check_budget`), keys added with ``+`` that nothing reads
+    (:func:`grt.settings.check_added_keys`; not for a resume, whose config was accepted when it started:
+    its classes must import, their arguments are not checked again),
+    the plain sections' values (:func:`grt.settings.check_sections`: ``deformer``, ``mesh``,
+    ``report.videos``, the task's score settings), that the optimizer accepts its settings (CMA-ES needs a
+    population of at least 2), and that every class the config names imports and takes the keys given to
+    it (:func:`grt.targets.check_targets`), so a bad value is refused before the run's folder is saved and
+    before the nominal simulation.
+
+    Args:
+        cfg: the composed root config.
+        classes: the config keys whose ``_target_`` this app builds (``("selector",)``; a task's session
+            class imports the simulator); ``None``: every one.
 
     Returns:
         ``cfg``, unchanged.
 
     Raises:
-        ConfigError: a user error (one line, exit code 2 in the CLIs, see :mod:`grt.cli._common`).
+        UserError: one line naming the key and the fix (exit code 2 in the CLIs, see :mod:`grt.cli._common`).
     """
     budget = cfg.get("budget")
     if budget is not None:
         check_budget(budget)
+    added, groups, app = _command()
+    resumed = bool(cfg.get("resume"))  # a run's own config, accepted when it started: its classes must import
+    if added and not resumed:
+        check_added_keys(cfg, added, app, groups)
+    check_sections(cfg)
     optimizer = cfg.get("optimizer")
     if budget is not None and isinstance(optimizer, DictConfig) and "_target_" in optimizer:
+        check_target("optimizer", optimizer)
         _check_optimizer(optimizer)
+    for key, node in targets(cfg):
+        if classes is None or any(key == c or key.startswith(f"{c}.") for c in classes):
+            check_target(key, node, arguments=not resumed)
     return cfg
+
+
+def _command() -> tuple[list[str], set[str], str]:
+    """The running Hydra app's overrides, config groups and name (``grt.run``); nothing outside an app."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return [], set(), "this command"
+    hydra_cfg = HydraConfig.get()
+    return list(hydra_cfg.overrides.task), set(hydra_cfg.runtime.choices), f"grt.{hydra_cfg.job.name}"
 
 
 def _check_optimizer(node: DictConfig) -> None:
@@ -167,9 +199,13 @@ def _check_optimizer(node: DictConfig) -> None:
                           f"budget.population={least} or more")
     try:
         instantiate(node)(num_handles=1)  # the optimizer groups are partials: num_handles comes at run time
+    except UserError:
+        raise
     except (ValueError, TypeError) as exc:
         raise ConfigError(f"{name} refuses its settings (optimizer.*, budget.population, budget.sigma): "
                           f"{exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a user's optimizer: one line, the traceback in a file
+        raise build_error("optimizer", str(node._target_), "building it", exc) from None
 
 
 def plain(node) -> dict | list:
@@ -181,6 +217,17 @@ def object_name(spec: str) -> str:
     """A short name for an object spec: the built-in name, or a file's stem."""
     text = str(spec)
     return Path(text).stem if ("/" in text or "." in text) else text
+
+
+def object_folder(spec: str) -> str:
+    """The folder name of an object spec in run folders' paths: a built-in's name (``mug``), a mesh file's
+    name with its suffix (``mug.obj``; ``mug-file`` for a file without one), so the runs of a user's mesh
+    named like a built-in never land beside the built-in's."""
+    text = str(spec)
+    if not ("/" in text or "." in text):
+        return text
+    name = Path(text).name or text.strip("/").replace("/", "_")
+    return name if Path(name).suffix else f"{name}-file"
 
 
 _OMEGACONF_24 = tuple(int(p) for p in omegaconf.__version__.split(".")[:2]) >= (2, 4)
@@ -205,6 +252,7 @@ def register() -> None:
     cs = ConfigStore.instance()
     cs.store(group="budget", name="schema", node=BudgetSchema)
     add_resolver("object_name", object_name)
+    add_resolver("object_folder", object_folder)
     # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
     add_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
 

@@ -69,6 +69,14 @@ def iter_at_50(curve: np.ndarray) -> tuple[int, bool]:
     return int(len(curve) - 1), False
 
 
+def iter_at_50_label(value, reached: bool | None) -> str:
+    """Iter@50% as a person reads it: the iteration, or ``not reached in T`` (the value is then the budget
+    ``T``, :func:`iter_at_50`; ``2 (not reached)`` read as "reached at 2")."""
+    if value is None:
+        return "-"
+    return str(value) if reached or reached is None else f"not reached in {value}"
+
+
 def delta_complexity(nominal_entropy: float, candidates: Sequence[tuple[float, float]], k: int = 10) -> float:
     """Median entropy increase of the ``k`` lowest-scoring shapes (paper: ten).
 

@@ -8,6 +8,7 @@ removes the CrashShapes of an earlier writing that are no longer among the lowes
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 import subprocess
@@ -85,11 +86,24 @@ def save_nominal(run_dir: Path, mesh: trimesh.Trimesh) -> Path:
     return path
 
 
-# What save_crashshapes writes per shape: rank<r>_it<t>_c<i>.stl / .obj and the _parts folder, and
-# the temporary names of atomic_path (left behind only by a kill -9 in the middle of a write).
+# What save_crashshapes writes per shape: rank<r>_it<t>_c<i>.stl / .obj (meters), the same in the input's units
+# (rank<r>_it<t>_c<i>_mm.stl / .obj with object_scale=0.001) and the _parts folder, and the temporary names of
+# atomic_path (left behind only by a kill -9 in the middle of a write).
 _TEMP = r"\..+\.[0-9a-f]{8}\.tmp(\.\w+)?"
-_CRASHSHAPE = re.compile(rf"rank\d+_it\d+_c\d+(\.stl|\.obj|_parts)|{_TEMP}")
+_CRASHSHAPE = re.compile(rf"rank\d+_it\d+_c\d+(_[a-z]+)?(\.stl|\.obj)|rank\d+_it\d+_c\d+_parts|{_TEMP}")
 _PART = re.compile(rf"part\d+\.obj|{_TEMP}")
+SHAPES_README = "README.txt"
+# Named units of object_scale (meters per mesh unit), as file-name suffixes.
+UNITS = {"mm": 0.001, "cm": 0.01, "dm": 0.1, "in": 0.0254, "ft": 0.3048}
+
+
+def input_unit(scale: float) -> str | None:
+    """The name of the input's unit (``object_scale`` meters per mesh unit): ``mm`` for 0.001, ``in`` for
+    0.0254 ...; ``input`` for a scale with no name; ``None`` for 1 (meters, the files GRT writes anyway)."""
+    scale = float(scale)
+    if math.isclose(scale, 1.0, rel_tol=1e-9):
+        return None
+    return next((name for name, m in UNITS.items() if math.isclose(scale, m, rel_tol=1e-9)), "input")
 
 
 def crash_records(records: list[dict], k: int, s0: float | None = None, margin: float = 0.0) -> list[dict]:
@@ -102,8 +116,11 @@ def crash_records(records: list[dict], k: int, s0: float | None = None, margin: 
 
 
 def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], evaluator,
-                     folder: str = "crashshapes") -> list[dict]:
-    """Write each CrashShape in meters (watertight STL + OBJ, and the convex parts it was simulated with).
+                     folder: str = "crashshapes", scale: float = 1.0) -> list[dict]:
+    """Write each CrashShape in meters (watertight STL + OBJ, and the convex parts it was simulated with), and,
+    for an object given in other units (``scale``: ``object_scale``, meters per input unit), also in the
+    input's units (``<stem>_mm.stl`` / ``.obj`` for millimetres, :func:`input_unit`): a slicer or CAD tool
+    reads those at the input's size. ``README.txt`` in the folder says which file is in which unit.
 
     CrashShape files in ``folder`` (``crashshapes/``; ``best/`` for the best candidates of a run that found
     no CrashShape) that this call did not write (an earlier writing's ranks) are removed afterwards, so the
@@ -111,6 +128,7 @@ def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trime
     """
     out = run_dir / folder
     out.mkdir(exist_ok=True)
+    unit = input_unit(scale)
     saved, written = [], set()
     for rank, (rec, mesh) in enumerate(zip(best, meshes, strict=True), start=1):
         stem = f"rank{rank}_it{rec['iteration']}_c{rec['candidate']}"
@@ -120,6 +138,13 @@ def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trime
         entry = {"rank": rank, "file": f"{folder}/{stem}.stl", "score": rec["score"],
                  "iteration": rec["iteration"], "candidate": rec["candidate"],
                  "watertight": bool(mesh.is_watertight), "smoothness_m": rec.get("smoothness_m")}
+        if unit is not None:
+            in_units = trimesh.Trimesh(np.asarray(mesh.vertices) / float(scale), mesh.faces, process=False)
+            for ext in ("stl", "obj"):
+                with atomic_path(out / f"{stem}_{unit}.{ext}") as tmp:
+                    in_units.export(tmp, file_type=ext)
+                written.add(f"{stem}_{unit}.{ext}")
+            entry.update(file_input_units=f"{folder}/{stem}_{unit}.stl", input_unit=unit)
         parts_dir = out / f"{stem}_parts"
         parts_dir.mkdir(exist_ok=True)
         parts = set()
@@ -132,7 +157,23 @@ def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trime
         saved.append(entry)
         written |= {f"{stem}.stl", f"{stem}.obj", f"{stem}_parts"}
     _remove_except(out, written, _CRASHSHAPE)
+    write_text_atomic(out / SHAPES_README, shapes_readme(folder, unit, scale))
     return saved
+
+
+def shapes_readme(folder: str, unit: str | None, scale: float) -> str:
+    """``README.txt`` of a CrashShape folder: the unit of each file."""
+    what = "CrashShapes" if folder == "crashshapes" else "best candidates (no CrashShape: none failed)"
+    lines = [f"{folder}/: the run's {what}, ranked (rank1 scored lowest).", "",
+             "rank<r>_it<t>_c<i>.stl / .obj: in METERS (what GRT simulated; a slicer that assumes millimetres "
+             "shows them 1000x too small: scale by 1000 or use the files below).",
+             "rank<r>_it<t>_c<i>_parts/: the convex collision parts the simulator used (meters)."]
+    if unit is not None:
+        named = f"{unit}" if unit != "input" else f"the input's units, 1 unit = {scale:g} m"
+        lines.insert(3, f"rank<r>_it<t>_c<i>_{unit}.stl / .obj: the same shapes in the input mesh's units "
+                        f"({named}; object_scale={scale:g}): the size your own files have.")
+    lines += ["handles.json: the handle and anchor vertex indices (into every file's vertices).", ""]
+    return "\n".join(lines)
 
 
 def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
@@ -217,7 +258,8 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         summary["note"] = "; ".join(notes)
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
     folder, other = ("crashshapes", "best") if crashes else ("best", "crashshapes")
-    entries = save_crashshapes(run_dir, best, meshes, evaluator, folder=folder)
+    entries = save_crashshapes(run_dir, best, meshes, evaluator, folder=folder,
+                               scale=float(cfg.get("object_scale", 1.0) or 1.0))
     for entry, mesh in zip(entries, meshes, strict=True):  # how far each is from the nominal (issue 33 §4)
         entry.update(shape_change(deformer.mesh, mesh))
     summary["crashshapes"] = entries if crashes else []
@@ -295,7 +337,7 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     fmt = lambda v, f="{:.3f}": "-" if v is None or (isinstance(v, float) and v != v) else f.format(v)  # noqa: E731
     table.add_row(score.fmt(summary["s0"], unit=True), score.fmt(summary["best_score"], unit=True),
                   fmt(summary["final_drop"], "{:.1%}"),
-                  f"{summary['iter_at_50']}{'' if summary['reached_50'] else ' (not reached)'}",
+                  metrics.iter_at_50_label(summary["iter_at_50"], summary["reached_50"]),
                   fmt(summary["auc"]), fmt(summary["delta_complexity"]), str(summary["evaluations"]),
                   fmt(summary["wall_s"], "{:.0f}"))
     console = wide_console()  # in a log: as wide as the table and the paths (grt.console)
@@ -324,10 +366,10 @@ def print_summary(summary: dict, run_dir: Path) -> None:
         console.print("shape change vs nominal: " + "; ".join(
             f"rank {e['rank']}: volume {fmt(e['volume_change'], '{:+.1%}')}, max dihedral change "
             f"{fmt(e['max_dihedral_change_deg'], '{:.0f}')}°" for e in shapes))
-    if summary.get("tau_how"):
-        console.print(f"Smoothness-Score cap: {summary['tau_how']}")
     found = summary.get("crashshape_found", True)
-    where = f"CrashShapes: {run_dir / 'crashshapes'}" if found else \
-        f"no CrashShape found; best candidates (not failures): {run_dir / 'best'}"
+    unit = next((e["input_unit"] for e in shapes if e.get("input_unit")), None)
+    units = f" (meters; in the input's units too: rank*_{unit}.stl, see README.txt there)" if unit else " (meters)"
+    where = f"CrashShapes: {run_dir / 'crashshapes'}{units}" if found else \
+        f"no CrashShape found; best candidates (not failures): {run_dir / 'best'}{units}"
     console.print(f"run folder: {run_dir}\n  curve: {run_dir / 'curve.png'}\n  shapes: {run_dir / 'shapes.png'}"
                   f"\n  {where}")

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import trimesh
 
+from grt.evaluators.base import NothingScoredError, check_scored
 from grt.geometry.mesh import mesh_hash
 from grt.journal import InOrder, Journal, JournalError
 from grt.optimizers.base import Optimizer
@@ -90,9 +91,13 @@ class RedTeamLoop:
                 self._mismatch(rec["iteration"], rec["candidate"], "its episode seeds differ (budget.trials "
                                "or budget.seed changed)")
         s0 = self._nominal_score()
-        if not np.isfinite(s0):
-            raise RuntimeError("every trial on the nominal object ended in sim_error: the task cannot be "
-                               "scored on this object (see the journal's first line for the reasons)")
+        if not np.isfinite(s0):  # a journal written before such a record was kept out of it
+            first = next((tr.get("error") for tr in self.journal.get(0, 0)["trials"] if tr.get("error")), None)
+            raise NothingScoredError(
+                f"every trial on the nominal object ended in sim_error ({first or 'no reason recorded'}), and the "
+                f"journal {self.journal.path} keeps that record: once the cause is fixed, move the journal away "
+                f"(mv {self.journal.path} {self.journal.path.with_suffix('.failed.jsonl')}) and resume, which "
+                "evaluates the nominal object again")
         if self.on_nominal:
             self.on_nominal(s0)
         self._s0 = s0
@@ -165,6 +170,8 @@ class RedTeamLoop:
         order = InOrder(write)
 
         def finish(k: int, result) -> None:
+            if t == 0 and result is not None:  # nothing scored on the nominal object: never journaled, so that a
+                check_scored(result, "the nominal object")  # resume, once the cause is fixed, evaluates it again
             order.done(k, self._record(t, *todo[k], *checks[k], result))
 
         # the nominal object is always scored; an implausible candidate is not simulated (NaN)

@@ -153,7 +153,13 @@ class RunReplayer:
 
         want = (self.records.get((0, 0)) or {}).get("mesh_hash")
         try:
-            mesh = load_mesh(self.cfg.object, scale=self.cfg.get("object_scale", 1.0),
+            from omegaconf import OmegaConf
+
+            from grt.tasks import task_object
+
+            spec = task_object(self.cfg.task, self.cfg.object, OmegaConf.select(self.cfg, "paths.cache_dir",
+                                                                                default="~/.cache/grt"))
+            mesh = load_mesh(spec, scale=self.cfg.get("object_scale", 1.0),
                              settings=MeshSettings.from_config(self.cfg.mesh) if self.cfg.get("mesh") else None)
             if want and mesh_hash(mesh.vertices, mesh.faces) == want and len(mesh.vertices) == len(saved.vertices):
                 return mesh
@@ -218,7 +224,9 @@ class RunReplayer:
             outcome = session.run_trial(int(seed))
         stride = max(1, math.ceil(steps[0] / MAX_FRAMES))
         if video:  # filmed again, knowing its length: ~MAX_FRAMES frames (an outcome is a function of mesh and seed)
-            with _one_thread(), _filming(session, frames, stride=stride, steps=[0]):
+            framing = getattr(session.env.unwrapped, "video_camera", None)  # the grasp env's: on the nominal object
+            camera = framing(self.nominal) if framing is not None else {}
+            with _one_thread(), _filming(session, frames, stride=stride, steps=[0], camera=camera):
                 filmed = session.run_trial(int(seed))
             if (filmed.mode, filmed.score) != (outcome.mode, outcome.score):
                 self.notes.append(f"the filmed run ended {filmed.mode}, the unfilmed one {outcome.mode}")
@@ -251,9 +259,11 @@ def _one_thread():
 
 
 @contextlib.contextmanager
-def _filming(session, frames: list | None = None, stride: int = 1, steps: list | None = None):
-    """Count the env steps (``steps[0]``) and, with ``frames``, grab a frame of the task's fixed render
-    camera after every ``stride``-th step."""
+def _filming(session, frames: list | None = None, stride: int = 1, steps: list | None = None,
+             camera: dict | None = None):
+    """Count the env steps (``steps[0]``) and, with ``frames``, grab a frame of the task's render camera after
+    every ``stride``-th step (``camera``: its settings for this film, e.g. the grasp env's framing of the
+    nominal object, :meth:`grt.tasks.grasp_env.GraspEnv.video_camera`)."""
     env = session.env
     step = env.step
     count = steps if steps is not None else [0]
@@ -262,7 +272,8 @@ def _filming(session, frames: list | None = None, stride: int = 1, steps: list |
     if frames is not None:
         # The trial rebuilds its scene first, which re-reads the render camera's settings: film at VIDEO_SIZE
         # (lavapipe renders 512 x 512 at ~5 frames/s; 320 x 320 keeps a replay within seconds).
-        raw._custom_human_render_camera_configs = {**(custom or {}), "width": VIDEO_SIZE, "height": VIDEO_SIZE}
+        raw._custom_human_render_camera_configs = {**(custom or {}), **(camera or {}), "width": VIDEO_SIZE,
+                                                   "height": VIDEO_SIZE}
 
     def filmed(action):
         result = step(action)
@@ -324,8 +335,9 @@ def render_videos(run_dir: Path, summary: dict, count: int) -> dict:
     run_dir = Path(run_dir)
     out = run_dir / "videos"
     out.mkdir(exist_ok=True)
-    index: dict = {"pairs": [], "camera": f"fixed task render camera, {VIDEO_SIZE} x {VIDEO_SIZE}, about one frame per 0.1 s of the episode "
-                   "(every n-th control step, played in real time)"}
+    index: dict = {"pairs": [], "camera": f"the task's render camera (grasp: framed on the nominal object and the room "
+                   f"its lift and shake need, the same for both clips), {VIDEO_SIZE} x {VIDEO_SIZE}, about one frame "
+                   "per 0.1 s of the episode (every n-th control step, played in real time)"}
     start = time.perf_counter()
     problem = renderer_problem()
     shapes = (summary.get("crashshapes") or [])[:count]

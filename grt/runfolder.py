@@ -71,7 +71,7 @@ EVALUATOR_RESULTS = ("collision", "coacd", "max_hull_vertices")
 # FROM_COMMAND keys a run saved before they existed takes from the command all the same: they only choose
 # what is made after the search (report.html's videos), never a result.
 AFTER_SEARCH = ("budget.videos", "report")
-RUN_FOLDERS = "outputs/<task>/<object>/<selector>-<optimizer>/<time>"
+RUN_FOLDERS = "outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>"
 # Targets renamed since format 1: the evaluators package was ``grt.eval`` (the alias package is gone).
 RENAMED_TARGETS = {"grt.eval.evaluator.SimEvaluator": "grt.evaluators.sim.SimEvaluator"}
 # Keys a format-1 (or 0) config may lack, with the values such a run was made with.
@@ -474,20 +474,26 @@ def resume_overrides(overrides: list[str], kind: Resumable = RUN) -> list[str]:
         ``overrides`` unchanged without ``resume=``.
 
     Raises:
-        ResumeError: DIR is missing or not a run (of ``kind``), or an override would change the run (names
-            the keys).
+        ResumeError: DIR is missing or not a run (of ``kind``), empty (``resume=`` of an unset shell variable;
+            ``resume=null`` is no resume), or an override would change the run (names the keys).
     """
     try:
         given = OverridesParser.create().parse_overrides(overrides)
     except HydraException:
         return overrides  # Hydra reports a malformed override itself
     resume = [o for o in given if o.key_or_group == "resume"]
+    if resume and isinstance(resume[-1].value(), str) and not resume[-1].value().strip():
+        raise ResumeError(f"{resume[-1].input_line.strip()!r}: resume= is empty (an unset shell variable?), and a "
+                          f"new {kind.noun} is not what resume= asks for: give the folder to continue "
+                          f"(resume=DIR), or leave resume= out to start a new {kind.noun}")
     if not resume or not resume[-1].value():
         return overrides
     run_dir = resume[-1].value()
     if not isinstance(run_dir, str):
         raise ResumeError(f"{resume[-1].input_line}: resume= takes one run folder")
     saved = kind.load(Path(run_dir))
+    if kind is RUN:
+        refuse_edited_record(Path(run_dir))
     free = [o for o in given if kind.free(o.key_or_group)]
     changed = [o for o in given if o.key_or_group != "resume" and o not in free and not saved.keeps(o)]
     if changed:
@@ -499,6 +505,67 @@ def resume_overrides(overrides: list[str], kind: Resumable = RUN) -> list[str]:
             f"or start a new {kind.noun} with these settings: the same command without resume=")
     own = [line for line in saved.overrides if not any(_under(_key(line), (o.key_or_group,)) for o in free)]
     return [*own, "hydra.output_subdir=.hydra/resume", *(o.input_line for o in free), resume[-1].input_line]
+
+
+# Keys of a run's record not compared with Hydra's record of its start (:func:`record_edits`): those a resume
+# may give (they do not change the run), where the run ran, and values kept as given (the policy's token).
+_NOT_COMPARED = (*RESUME_FREE, *FROM_COMMAND, "paths", "resume", "policy.token", "evaluator")
+
+
+def record_edits(run_dir: Path) -> list[str]:
+    """Where a run's own record (``run_config.yaml``) and Hydra's record of its start (``.hydra/config.yaml``,
+    which a resume never rewrites) disagree on a key that shapes the run: ``["object (run_config.yaml: bottle,
+    .hydra/config.yaml: mug)", ...]``; empty when they agree or there is no second record to compare with
+    (a format-0 folder, a run started from Python). Keys a resume may change, and values that do not resolve
+    outside the run (``${hydra:...}``), are not compared; the evaluator's collision keys are."""
+    record, start = run_dir / RUN_CONFIG, run_dir / TRAIN_RECORD
+    if not record.is_file() or not start.is_file():
+        return []
+    try:
+        saved, started = OmegaConf.load(record).config, OmegaConf.load(start)
+    except Exception:  # noqa: BLE001 - an unreadable record: SavedRun.load names it
+        return []
+    found: list[str] = []
+    _compare(saved, started, started, "", found)
+    evaluator = saved.get("evaluator") if isinstance(saved.get("evaluator"), DictConfig) else {}
+    for key in EVALUATOR_RESULTS:
+        if key in evaluator:
+            _compare_leaf(evaluator[key], started, f"evaluator.{key}", found)
+    return found
+
+
+def _compare(saved: DictConfig, node: DictConfig, started: DictConfig, prefix: str, found: list[str]) -> None:
+    for key in saved:
+        path = f"{prefix}{key}"
+        if _under(path, _NOT_COMPARED) or key not in node:
+            continue
+        if isinstance(saved[key], DictConfig) and isinstance(node._get_node(key), DictConfig):
+            _compare(saved[key], node[key], started, f"{path}.", found)
+        else:
+            _compare_leaf(saved[key], started, path, found)
+
+
+def _compare_leaf(value, started: DictConfig, path: str, found: list[str]) -> None:
+    try:
+        had = OmegaConf.select(started, path, throw_on_resolution_failure=True)
+    except Exception:  # noqa: BLE001 - e.g. ${hydra:...}: nothing to compare with outside the run
+        return
+    mine = OmegaConf.to_container(value, resolve=True) if isinstance(value, (DictConfig, ListConfig)) else value
+    had = OmegaConf.to_container(had, resolve=True) if isinstance(had, (DictConfig, ListConfig)) else had
+    if mine != had:
+        found.append(f"{path} ({RUN_CONFIG}: {mine}, {TRAIN_RECORD}: {had})")
+
+
+def refuse_edited_record(run_dir: Path) -> None:
+    """Raise :class:`ResumeError` when the run's record was edited since it started (:func:`record_edits`),
+    before anything is written: a resume would otherwise run another config over the run's journal."""
+    edits = record_edits(run_dir)
+    if edits:
+        shown = "; ".join(edits[:3]) + (f"; and {len(edits) - 3} more" if len(edits) > 3 else "")
+        raise ResumeError(f"resume={run_dir}: the run's record was edited after it started, its two records "
+                          f"differ: {shown}. A run keeps the config it started with: restore {RUN_CONFIG} (the "
+                          f"start's values are in {TRAIN_RECORD}), or start a new run with the new settings "
+                          "(the same command without resume=)")
 
 
 def own_config(cfg: DictConfig) -> DictConfig:
@@ -583,9 +650,26 @@ def interrupted(run_dir: Path, how: str = "interrupted (Ctrl-C)") -> str:
 
 
 def resume_command(run_dir: Path) -> str:
-    """``python -m grt.run resume=DIR`` (DIR relative to the working folder when under it)."""
+    """``python -m grt.run resume=DIR`` (DIR relative to the working folder when under it), quoted so that it
+    works when pasted into a shell whatever DIR's name holds (:func:`override_arg`)."""
+    run_dir = Path(run_dir)
     shown = Path(os.path.relpath(run_dir)) if run_dir.resolve().is_relative_to(Path.cwd()) else run_dir
-    return f"python -m grt.run resume={shlex.quote(str(shown))}"
+    return f"python -m grt.run {override_arg('resume', str(shown))}"
+
+
+def override_arg(key: str, value: str) -> str:
+    """``key=value`` as one shell word that Hydra's override parser reads back as ``value``: as it is when both
+    take it so, else the value in Hydra's quotes (a space, a non-ASCII letter or one of ``()[]{},'"`` needs
+    them) inside the shell's (``'resume="/data/my run (2)"'``)."""
+    escaped = value.replace("\\", "\\\\").replace("'", "\\'")
+    for arg in (f"{key}={value}", f'{key}="{value}"', f"{key}='{value}'", f"{key}='{escaped}'"):
+        try:
+            override = OverridesParser.create().parse_override(arg)
+        except HydraException:
+            continue
+        if override.key_or_group == key and override.value() == value:
+            return shlex.quote(arg)
+    return shlex.quote(f"{key}={value}")  # no form Hydra reads back (never seen): the plain one, in a message
 
 
 def storage_error(exc: BaseException, run_dir: Path) -> str | None:
@@ -630,6 +714,15 @@ LOCK = ".grt.lock"  # in the run folder while a process runs there: its PID, und
 
 class FolderBusyError(UserError):
     """Another process holds the run folder's lock."""
+
+
+class FolderNotEmptyError(UserError):
+    """A new run (of any GRT app) given a folder that already holds files: the user's, or another command's."""
+
+
+# What Hydra writes when an app starts (besides ``<app>.log``): a folder holding only these and the log is a
+# start that was killed before it saved anything, which a new start may take over.
+HYDRA_RECORD = {"config.yaml", "hydra.yaml", "overrides.yaml"}
 
 
 _held: dict[Path, int] = {}  # run folder (resolved) -> this process's locked file descriptor of its LOCK
@@ -711,13 +804,16 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
     into it.
 
     Refuses a new run in a folder that holds a red-team run (its record would be rewritten and two runs'
-    journals mixed; or, for another app, the run's files overwritten by its own) and a folder another
-    process runs in; notes what this command makes, so that a run refused before it saved anything leaves
-    nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's log file (``<app>.log``).
+    journals mixed; or, for another app, the run's files overwritten by its own), a new run in any other
+    folder that is not empty (:func:`check_new_folder`: the user's own files, or another command's), and a
+    folder another process runs in; notes what this command makes, so that a run refused before it saved
+    anything leaves nothing behind (:func:`discard_new`). ``log_file``: the name of Hydra's log file
+    (``<app>.log``).
 
     Raises:
         ResumeError: a new run (no ``resume=``) in a red-team run's folder, or another app's command (resumed
             or not) there: only ``grt.run`` continues a red-team run.
+        FolderNotEmptyError: a new run in a folder that holds other files.
         FolderBusyError: another process holds the folder's lock.
         OutputError: the folder cannot be made or written.
     """
@@ -740,7 +836,36 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
                               "its own (hydra.run.dir=PATH, or leave it out for a new one)")
         raise ResumeError(f"hydra.run.dir={run_dir} already holds a run ({RUN_CONFIG} there), which this command "
                           f"would overwrite: continue it with {resume_command(run_dir)}, or give a new folder")
+    if not resume or Path(resume).resolve() != run_dir.resolve():
+        try:
+            check_new_folder(run_dir, before, app, log_file)
+        except FolderNotEmptyError:
+            release(run_dir)
+            raise
     _claimed[run_dir.resolve()] = (first_new, before, hydra_files)
+
+
+def check_new_folder(run_dir: Path, before: set[str], app: str, log_file: str) -> None:
+    """Refuse a new run of ``python -m grt.<app>`` in ``run_dir`` unless the folder is new or empty (``before``:
+    the names it held), or holds only a start of the same app killed before it saved anything (Hydra's
+    record and ``log_file``), or is a folder the app continues in place (a ``grt.blueteam`` study, a
+    ``grt.train`` training).
+
+    Raises:
+        FolderNotEmptyError: names the folder, what it holds and what to do.
+    """
+    held = sorted(before - {LOCK})
+    hydra = run_dir / ".hydra"
+    killed_start = set(held) <= {".hydra", log_file} and (
+        not hydra.is_dir() or {p.name for p in hydra.iterdir()} <= HYDRA_RECORD)
+    in_place = (app == "blueteam" and is_study_folder(run_dir)) or (app == "train" and is_training_folder(run_dir))
+    if not held or killed_start or in_place:
+        return
+    shown = ", ".join(held[:4]) + (f" and {len(held) - 4} more" if len(held) > 4 else "")
+    flag = "hydra.run.dir=PATH" + (" or out_dir=PATH" if app == "select" else "")
+    raise FolderNotEmptyError(f"{run_dir} is not empty (it holds {shown}): a new python -m grt.{app} starts only in a "
+                              f"new or empty folder, so that nothing there is overwritten or mixed with its files; "
+                              f"give another folder ({flag}), or leave it out for a new one")
 
 
 def discard_new(run_dir: Path) -> str:

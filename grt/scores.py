@@ -148,12 +148,12 @@ def is_crash(score: float, s0: float, margin: float) -> bool:
     return bool(s0 > 0 and score == score and score < s0 and (s0 - score) / s0 >= margin - 1e-12)
 
 
-def check_nominal_floor(s0: float, floor: float | None, spec: ScoreSpec, run_dir: str | None = None) -> None:
+def check_nominal_floor(s0: float, floor: float | None, spec: ScoreSpec, resume: str | None = None) -> None:
     """Stop a run whose nominal score is below ``floor`` (``None``: never).
 
     Args:
         s0: the nominal score; floor: the task's :func:`nominal_floor`; spec: the task's score.
-        run_dir: the run's folder, named in the message (the command that continues it).
+        resume: the command that continues the run (``python -m grt.run resume=DIR``), named in the message.
 
     Raises:
         NominalFloorError: one line naming ``S0``, the floor and what to do.
@@ -161,7 +161,7 @@ def check_nominal_floor(s0: float, floor: float | None, spec: ScoreSpec, run_dir
     if floor is None or not s0 < floor:
         return
     lower = f"{floor / 2:.2g}"
-    where = f"python -m grt.run resume={run_dir} task.nominal_floor={lower}" if run_dir else \
+    where = f"{resume} task.nominal_floor={lower}" if resume else \
         f"task.nominal_floor={lower}"
     raise NominalFloorError(
         f"S0 = {spec.fmt(s0, unit=True)} ({spec.label} on the nominal object) is below task.nominal_floor = "

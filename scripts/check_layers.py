@@ -33,7 +33,7 @@ LAYERS: dict[str, int] = {
     "grt.objects": 1,
     "grt.geometry": 2,
     "grt.optimizers": 3, "grt.metrics": 3, "grt.scores": 3,
-    "grt.config": 4,
+    "grt.config": 4, "grt.settings": 4, "grt.targets": 4,
     "grt.selectors": 5, "grt.policies": 5,
     "grt.tasks": 6,
     "grt.evaluators": 7,
@@ -42,7 +42,7 @@ LAYERS: dict[str, int] = {
     "grt.rl": 9, "grt.blueteam": 9,
     "grt.bench": 10,
     "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11,
-    "grt.serve": 11, "grt.replay": 11,
+    "grt.serve": 11, "grt.replay": 11, "grt.calibrate": 11,
 }
 TOP = 11  # every ``__main__`` module (a ``python -m`` shim)
 

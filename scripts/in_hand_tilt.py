@@ -6,7 +6,7 @@ policy) cannot see this; one that does (the point-cloud policy) can. This measur
 plug and the run's lowest-scoring candidates: the tilt (deg) after 40 control steps of a motionless
 hand, on the run's first evaluation episodes::
 
-    .venv/bin/python scripts/in_hand_tilt.py outputs/insertion/usb_plug/manual-topdm/<time> --top 10
+    .venv/bin/python scripts/in_hand_tilt.py outputs/insertion/usb_plug/insertion_state/manual-topdm/<time> --top 10
 
 Measured in experiments/table3_blueteam/log.md ("Why the state policy's CrashShapes are out of its reach").
 """

@@ -92,3 +92,15 @@ def test_object_deforms_with_a_few_handles(name, rng):
     assert np.all(np.isfinite(out))
     target = d.frame.to_metric(d.v0_unit[order[-3:]] + theta)
     assert np.abs(out[order[-3:]] - target).max() < 1e-8
+
+
+def test_the_listing_says_which_task_each_object_is_for(capsys):
+    """``python -m grt.objects`` names each object's task (issue 40: ``plug`` is listed but is no insertion plug)."""
+    from grt.cli.objects import main
+
+    main([])
+    rows = {line.split()[0]: line.split()[1] for line in capsys.readouterr().out.splitlines()[1:] if line.split()}
+    assert rows["usb_plug"] == rows["round_peg"] == "insertion"
+    assert rows["drawer_handle"] == rows["drawer_pull"] == "drawer"
+    assert rows["plug"] == rows["mug"] == "grasp"
+    assert object_info("plug")["task"] == "grasp"

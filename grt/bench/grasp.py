@@ -25,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+import grt
+
+CONF_DIR = Path(grt.CONF_DIR)
 
 
 def compose(overrides: list[str]):

@@ -124,8 +124,11 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     if args.objects:
         objects = [(o, REAL_SCALES.get(Path(o).name, 1.0)) for o in args.objects.split(",")]
-    else:
-        objects = [(str(REAL / name), scale) for name, scale in REAL_SCALES.items()] + [(b, 1.0) for b in BUILTINS]
+    else:  # the repository's test meshes, when this is a checkout (an installed GRT has the built-ins only)
+        real = [(str(REAL / name), scale) for name, scale in REAL_SCALES.items()] if REAL.is_dir() else []
+        if not real:
+            print(f"no {REAL} (an installed GRT): measuring the built-in objects; --objects takes your files")
+        objects = real + [(b, 1.0) for b in BUILTINS]
 
     rows = inputs(objects)
     widths = (22, 7, 7, 6, 6, 6, 6, 6, 6, 6, 6, 6, 6)

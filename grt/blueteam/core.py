@@ -30,6 +30,8 @@ from grt.geometry.prepare import MeshSettings
 from grt.outputs import crash_records
 from grt.scores import ScoreSpec
 from grt.selectors.base import HandleSet
+from grt.targets import build
+from grt.tasks import task_object
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +64,7 @@ def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
     journal = run_dir / "journal.jsonl"
     if not is_run_folder(run_dir) or not journal.exists() or not (run_dir / "handles.json").exists():
         raise BlueTeamError(f"{run_dir} is not a red-team run folder (it needs {RUN_CONFIG}, handles.json and "
-                            "journal.jsonl): give run=outputs/<task>/<object>/<selector>-<optimizer>/<time>")
+                            "journal.jsonl): give run=outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>")
     return load_run_config(run_dir), Journal(journal).records
 
 
@@ -70,7 +72,7 @@ def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tu
     """``(nominal, deformer, collision)`` of a red-team run, prepared as the run did: its nominal mesh,
     the deformer over its handles (a journaled theta gives the candidate's mesh bit for bit) and its
     collision-part maker (CoACD cache under ``cache_dir``)."""
-    nominal = load_mesh(run_cfg.object, scale=run_cfg.get("object_scale", 1.0),
+    nominal = load_mesh(task_object(run_cfg.task, run_cfg.object, cache_dir), scale=run_cfg.get("object_scale", 1.0),
                         settings=MeshSettings.from_config(run_cfg.get("mesh")))
     handles = HandleSet.from_json((Path(run_dir) / "handles.json").read_text())
     deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **deformer_options(run_cfg.deformer))
@@ -91,9 +93,7 @@ def make_evaluator(cfg: DictConfig, task: dict, policy: dict, progress: bool = T
         task, policy: the red-team run's task and policy configs (plain).
         progress: show a progress bar per evaluation.
     """
-    from hydra.utils import instantiate
-
-    return instantiate(cfg.evaluator)(task=task, policy=policy, collision="coacd", progress=progress)
+    return build(cfg.evaluator, "evaluator", task=task, policy=policy, collision="coacd", progress=progress)
 
 
 def trainable_checkpoint(policy_cfg: dict) -> str:

@@ -43,6 +43,7 @@ from grt.policies.rsl_rl import load_checkpoint
 from grt.redteam import episode_seeds
 from grt.runfolder import STUDY_RECORD, SavedRun, own_study_config
 from grt.scores import ScoreSpec
+from grt.targets import check_target, targets
 
 log = logging.getLogger("grt.blueteam")
 
@@ -65,6 +66,9 @@ def blueteam(cfg: DictConfig, out_dir: Path, red_team: RedTeam | None = None) ->
     _check(bt, red_team)
     run_dir = Path(cfg.run)
     run_cfg, records = load_run(run_dir)
+    for key, node in targets(run_cfg):  # the run's policy and task: a class that no longer imports is one line
+        if key in ("policy", "task.session"):
+            check_target(key, node)
     task, policy_cfg = plain(run_cfg.task), plain(run_cfg.policy)
     checkpoint = trainable_checkpoint(policy_cfg)
     ckpt = load_checkpoint(checkpoint)

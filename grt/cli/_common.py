@@ -6,13 +6,20 @@ line with exit code 130 for Ctrl-C. Mistakes Hydra finds while it composes the c
 option, a value of the wrong type), before the app runs, are turned into the same one line by
 :func:`run_cli`, which each Hydra app's ``cli()`` calls.
 
-``CONF_DIR`` is the config folder the Hydra apps give ``@hydra.main``: an absolute path, because Hydra
-reads a relative ``config_path`` as a Python package (``pkg://conf``) whenever the app's function lives in
-an imported module, which it always does here (the ``python -m`` shims and console scripts import it).
+``CONF_DIR`` (:data:`grt.CONF_DIR`) is the config folder the Hydra apps give ``@hydra.main``: an absolute
+path (the repository's ``conf/`` in a checkout, ``grt/conf`` in an installed wheel), because Hydra reads a
+relative ``config_path`` as a Python package whenever the app's function lives in an imported module, which
+it always does here (the ``python -m`` shims and console scripts import it). A user's own config folder
+joins it with ``--config-dir DIR`` (Hydra's flag; docs/your-own-code.md): its groups' options show in
+``--help`` beside GRT's (:func:`config_groups`).
+
+Every ``--help`` starts with one line saying what the command does (:data:`ABOUT`, :func:`about_line`):
+the Hydra apps' through ``conf/hydra/help/grt.yaml``, the others' through :class:`AppParser`.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import os
@@ -23,27 +30,92 @@ from collections.abc import Callable
 from pathlib import Path
 
 from hydra._internal.utils import _run_hydra, get_args_parser
-from hydra.errors import ConfigCompositionException, HydraException, OverrideParseException
+from hydra.errors import (
+    ConfigCompositionException,
+    HydraException,
+    OverrideParseException,
+    SearchPathException,
+)
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
+from grt import CONF_DIR
 from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resolvers too
 from grt.config import BudgetSchema, add_resolver, budget_hint, unknown_budget_key
 from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
-from grt.runfolder import resume_overrides  # also registers the resume_or resolver of hydra.run.dir
+from grt.runfolder import (  # also registers the resume_or resolver of hydra.run.dir
+    discard_new,
+    resume_overrides,
+)
 
-CONF_DIR = str(Path(__file__).resolve().parents[2] / "conf")
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
 _NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
 
 
 HIDDEN_GROUPS = ("paths",)  # config groups that are no user choice, left out of --help (with hydra/*)
 
+#: What each command does: the first line of its ``--help`` (:func:`about_line`).
+ABOUT = {
+    "run": "red-team a policy: search small deformations of an object (CrashShapes) that make it fail",
+    "evaluate": "score a policy on one object as it is (no deformation): its score and failure modes",
+    "select": "choose the handles and anchors a red-team run moves and keeps on an object, and show them",
+    "deform": "deform a mesh: move handle points, keep anchor points, write the smooth result",
+    "blueteam": "fine-tune a red-teamed policy on its CrashShapes and measure what it gained (paper Table 3)",
+    "train": "train a task's policy with PPO (rsl-rl)",
+    "serve": "serve a GRT policy over grt-policy/1, for a run in another process or on another machine",
+    "bench": "measure GRT's speed and accuracy against a baseline measured in the same run",
+    "report": "the paper's tables (and report.html) of a run, a sweep or an experiments/ folder",
+    "replay": "re-run one trial of a red-team run (a candidate's or the nominal object's), optionally filmed",
+    "objects": "list the built-in objects (size, faces, named regions), optionally export them",
+    "calibrate": "check a ManiSkill task's nominal swap against the stock env, seed for seed (agreement, mass, "
+                 "extents)",
+}
+
+
+def about_line(name: str) -> str:
+    """The first line of ``grt-<name> --help``: the command and what it does."""
+    return f"grt-{name} (python -m grt.{name}): {ABOUT[name]}"
+
+
+def running_about() -> str:
+    """:func:`about_line` of the running Hydra app (resolver ``grt_about``, ``conf/hydra/help/grt.yaml``)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    name = HydraConfig.get().job.name if HydraConfig.initialized() else ""
+    return about_line(name) if name in ABOUT else f"{name}: a GRT command"
+
+
+class AppParser(argparse.ArgumentParser):
+    """The argument parser of GRT's apps that do not use Hydra: ``--help`` starts with :func:`about_line`."""
+
+    def __init__(self, name: str, **kwargs):
+        super().__init__(prog=f"python -m grt.{name}", description=kwargs.pop("description", ABOUT[name]),
+                         **kwargs)
+        self.about = about_line(name)
+
+    def format_help(self) -> str:
+        return f"{self.about}\n\n{super().format_help()}"
+
+
+def group_options(group: str) -> list[str]:
+    """The options of config group ``group`` in every config folder of the running app's search path: GRT's
+    ``conf/`` and a user's ``--config-dir`` (YAML files; a schema registered in code is not an option)."""
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.object_type import ObjectType
+
+    if not GlobalHydra.instance().is_initialized():
+        return sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+    options: set[str] = set()
+    for source in GlobalHydra.instance().config_loader().get_sources():
+        if source.scheme() != "structured" and source.available() and source.is_group(group):
+            options.update(source.list(group, ObjectType.CONFIG))
+    return sorted(options)
+
 
 def config_groups() -> str:
     """The ``--help`` lines of the running app's config groups (resolver ``grt_config_groups``, used by
-    ``conf/hydra/help/grt.yaml``): each group this command composes, its options (the YAML files: a
-    schema registered in code is not an option) and the one chosen; ``paths`` and ``hydra/*`` are hidden."""
+    ``conf/hydra/help/grt.yaml``): each group this command composes, its options (:func:`group_options`,
+    a user's own among them) and the one chosen; ``paths`` and ``hydra/*`` are hidden."""
     from hydra.core.hydra_config import HydraConfig
 
     if not HydraConfig.initialized():
@@ -52,13 +124,14 @@ def config_groups() -> str:
     for group, chosen in sorted(HydraConfig.get().runtime.choices.items()):
         if group == "hydra" or group.startswith("hydra/") or group in HIDDEN_GROUPS:
             continue
-        options = sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+        options = group_options(group)
         if options:
             lines.append(f"{group}: {', '.join(options)}  (now: {chosen if chosen is not None else 'none'})")
     return "\n".join(lines)
 
 
 add_resolver("grt_config_groups", config_groups)
+add_resolver("grt_about", running_about)
 
 
 def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:
@@ -79,18 +152,33 @@ def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = 
 @contextlib.contextmanager
 def exit_on_user_error(*also: type[BaseException]):
     """Turn a user error (or one of the types ``also``) into ``error: <message>`` on stderr and exit code 2,
-    Ctrl-C into one line and exit code 130."""
+    Ctrl-C into one line and exit code 130. Inside a Hydra app, a folder this command made and saved nothing
+    in is removed, and the line says so (:func:`grt.runfolder.discard_new`)."""
     try:
         yield
     except KeyboardInterrupt:
         print("interrupted (Ctrl-C)", file=sys.stderr)
         raise SystemExit(INTERRUPTED) from None
     except Exception as exc:
-        found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc)
+        found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc) or _search_path_error(exc)
         if found is None:
             raise
-        print(f"error: {found}", file=sys.stderr)
+        removed = _discard_run_folder()
+        print(f"error: {found}" + (f" ({removed})" if removed else ""), file=sys.stderr)
         raise SystemExit(2) from None
+
+
+def _discard_run_folder() -> str:
+    """:func:`grt.runfolder.discard_new` of the running Hydra app's folder (``""`` outside one)."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    try:
+        if not HydraConfig.initialized() or HydraConfig.get().mode != RunMode.RUN:
+            return ""
+        return discard_new(Path(HydraConfig.get().runtime.output_dir))
+    except Exception:  # noqa: BLE001 - no folder of this run (yet): nothing to remove
+        return ""
 
 
 def stop_on_sigterm() -> None:
@@ -177,6 +265,9 @@ def _compose_error(exc: BaseException) -> str | None:
     if isinstance(cause, (ConfigKeyError, ConfigAttributeError)) and key.startswith("hydra.launcher."):
         return unknown_launcher_key(key, getattr(cause, "object_type", None))  # '+' would fail at launch
     text = one_line(str(exc))
+    if text.startswith("Multiple values for ") and "override" in text:  # +GROUP=OPTION of a chosen group
+        group = text.removeprefix("Multiple values for ").split(".")[0]
+        return f"{group} is a config group this command already chooses: give {group}=OPTION (without '+')"
     if isinstance(exc, OverrideParseException):
         return quoting_hint(exc.override, text)
     if isinstance(cause, OmegaConfBaseException):
@@ -225,6 +316,14 @@ def _launcher_error(exc: BaseException) -> UserError | None:
     return None
 
 
+def _search_path_error(exc: BaseException) -> str | None:
+    """One line for a ``--config-dir DIR`` that is no folder (Hydra's ``SearchPathException``)."""
+    if not isinstance(exc, SearchPathException):
+        return None
+    return (f"--config-dir: {str(exc).replace('Additional config directory', 'the config folder')}; give the "
+            "folder that holds your config groups (policy/, task/, experiment/ ...)")
+
+
 def _setup_error(exc: OSError) -> OutputError | None:
     """An output folder Hydra could not create or write before the app ran (no GRT code below Hydra's).
 
@@ -245,6 +344,25 @@ def _setup_error(exc: OSError) -> OutputError | None:
                        "to: hydra.run.dir=PATH (hydra.sweep.dir=PATH with -m)")
 
 
+def recorded_config_dir(overrides: list[str]) -> str | None:
+    """The ``--config-dir`` the folder of ``resume=DIR`` was made with (Hydra's record of its config sources,
+    ``DIR/.hydra/hydra.yaml``), when that folder still exists; ``None`` otherwise."""
+    from omegaconf import OmegaConf
+
+    resume = next((line.partition("=")[2] for line in reversed(overrides) if line.startswith("resume=")), "")
+    record = Path(resume) / ".hydra" / "hydra.yaml" if resume else None
+    if record is None or not record.is_file():
+        return None
+    try:
+        sources = OmegaConf.select(OmegaConf.load(record), "hydra.runtime.config_sources") or []
+    except Exception:  # noqa: BLE001 - an unreadable record: the resume's own checks say so
+        return None
+    for source in sources:
+        if source.get("provider") == "command-line" and source.get("schema") == "file" and Path(source.path).is_dir():
+            return str(source.path)
+    return None
+
+
 def resumable_cli(main: Callable, config_name: str, kind, argv: list[str] | None = None) -> None:
     """Run the Hydra app ``main`` (config ``config_name``) from the command line, a ``resume=DIR`` first
     checked and made the folder's own command for its ``kind`` (:data:`grt.runfolder.TRAINING`, ``STUDY``)
@@ -254,5 +372,6 @@ def resumable_cli(main: Callable, config_name: str, kind, argv: list[str] | None
     with exit_on_user_error():
         if any("resume=" in arg for arg in args.overrides):
             args.overrides = resume_overrides(args.overrides, kind)
+            args.config_dir = args.config_dir or recorded_config_dir(args.overrides)  # the user's config folder
     run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
                                config_name=config_name))

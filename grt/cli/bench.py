@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-from grt.cli._common import exit_on_user_error
+from grt.cli._common import about_line, exit_on_user_error
 
 BENCHMARKS = ("deform", "grasp", "insertion", "drawer", "meshes", "remote", "scale", "gpu")
 USAGE = f"usage: python -m grt.bench {{{','.join(BENCHMARKS)}}} [options]  (--help for each)"
@@ -18,7 +18,7 @@ USAGE = f"usage: python -m grt.bench {{{','.join(BENCHMARKS)}}} [options]  (--he
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
-        print(USAGE, file=sys.stdout if argv else sys.stderr)
+        print(f"{about_line('bench')}\n\n{USAGE}" if argv else USAGE, file=sys.stdout if argv else sys.stderr)
         raise SystemExit(0 if argv else 2)
     if argv[0] not in BENCHMARKS:
         print(f"error: unknown benchmark {argv[0]!r}; choose one of {', '.join(BENCHMARKS)}", file=sys.stderr)

@@ -1,7 +1,7 @@
 """``python -m grt.blueteam run=<red-team run folder>`` (``grt-blueteam``): fine-tune the run's policy on
 its CrashShapes (paper Table 3); a Hydra app.
 
-    python -m grt.blueteam run=outputs/insertion/usb_plug/manual-topdm/<time>
+    python -m grt.blueteam run=outputs/insertion/usb_plug/insertion_state/manual-topdm/<time>
     python -m grt.blueteam resume=outputs/blueteam/<time>                      # continue a killed study
     python -m grt.blueteam resume=outputs/blueteam/<time> workers=8 blueteam.rered.enabled=false
     python -m grt.blueteam resume=outputs/blueteam/<time> blueteam.iterations=300 blueteam.val_patience=10
@@ -32,21 +32,23 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-import grt.config  # noqa: F401 - schemas and resolvers
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
+from grt.config import validate  # also registers schemas and resolvers
 from grt.runfolder import STUDY, ResumeError, discard_new, resume_or  # registers resume_or
 
 
 @hydra.main(config_path=CONF_DIR, config_name="blueteam", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    from grt.blueteam.core import BlueTeamError  # torch and the simulator: not for a refused command
-    from grt.blueteam.study import blueteam, resumed_config
-    from grt.runner import run as red_team
-
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     in_place = bool(cfg.resume) and Path(cfg.resume).resolve() == out_dir.resolve()
     with exit_on_user_error():
         try:
+            if not cfg.resume:  # before torch and the simulator are imported: a refused command is quick
+                validate(cfg)  # the evaluator's class imports and takes its keys, nothing unread
+            from grt.blueteam.core import BlueTeamError  # torch and the simulator: not for a refused command
+            from grt.blueteam.study import blueteam, resumed_config
+            from grt.runner import run as red_team
+
             if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
                 resume = Path(resume_or(cfg.resume, ""))
                 if not in_place:
@@ -55,6 +57,8 @@ def main(cfg: DictConfig) -> None:
                 cfg = resumed_config(cfg, resume)
             if cfg.run is None:
                 raise BlueTeamError("give the red-team run to blue-team: python -m grt.blueteam run=<run folder>")
+            if cfg.resume:
+                validate(cfg)  # the study's own config: its classes must still import
             result = blueteam(cfg, out_dir, red_team=red_team)
         except Exception as exc:
             found = find_user_error(exc)

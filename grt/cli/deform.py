@@ -9,7 +9,9 @@ Unlike :class:`grt.geometry.deform.ShapeDeformer` (which keeps anchors at rest),
 the anchor targets given in the file; ``--no-align`` skips the rigid Procrustes re-alignment of the
 result on the anchors. ``OUT`` is written whole or not at all, into an existing folder; a mistake (bad
 mesh or target file, unsupported ``--out`` format, missing or read-only folder) is one ``error:`` line
-and exit code 2, Ctrl-C exit code 130.
+and exit code 2, Ctrl-C exit code 130. Nothing the user has is overwritten unasked: an ``--out`` that is
+one of the command's inputs (the mesh, the handle or anchor file, also through a link) is always refused,
+and an ``--out`` that is another existing file is refused unless ``--overwrite`` is given.
 
 Indices count the vertices of the file as written (an OBJ's ``v`` lines). When loading or repair
 changes the vertices (an unreferenced vertex dropped, duplicates merged, ``--remesh``), each index is
@@ -19,15 +21,15 @@ has none within half an edge, or two indices that land on one vertex, is refused
 
 from __future__ import annotations
 
-import argparse
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from grt.cli._common import exit_on_user_error, write_output
-from grt.errors import UserError, check_output_file
+from grt.cli._common import AppParser, exit_on_user_error, write_output
+from grt.errors import OutputError, UserError, check_output_file
 from grt.geometry.deform import METHODS, JacobianFieldDeformer, check_indices
 from grt.geometry.indices import IndexMapError, carry_indices, file_vertices
 from grt.geometry.mesh import UnitCubeFrame, align_to_anchors, load_mesh
@@ -106,8 +108,25 @@ def deform_to_targets(mesh: trimesh.Trimesh, handles: np.ndarray, handle_pos: np
     return frame.to_metric(out), residual
 
 
+def check_not_overwritten(out: Path, inputs: dict[str, str], overwrite: bool) -> None:
+    """Refuse an ``--out`` that is one of the command's ``inputs`` (what -> path; also through a link or a
+    hard link: the same file), always, and any other existing file unless ``overwrite``.
+
+    Raises:
+        OutputError: names the file and what to do.
+    """
+    if not out.exists():
+        return
+    for what, path in inputs.items():
+        if Path(path).exists() and os.path.samefile(out, path):
+            raise OutputError(f"--out {out} is {what} ({path}): writing it would replace the input; give another "
+                              "--out (the input is never overwritten)")
+    if not overwrite:
+        raise OutputError(f"--out {out} already exists; give another --out, or --overwrite to replace it")
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m grt.deform", description=__doc__.split("\n\n")[0])
+    ap = AppParser("deform", description=__doc__.split("\n\n")[0])
     ap.add_argument("mesh", help="mesh file (OBJ/STL/PLY/GLB/OFF) or built-in object name")
     ap.add_argument("--handles", required=True, help="file of 'index x y z' handle targets")
     ap.add_argument("--anchors", required=True, help="file of 'index x y z' anchor targets")
@@ -116,11 +135,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--method", choices=METHODS, default="exact")
     ap.add_argument("--lam", type=float, default=1.0, help="anchor weight (APAP: 1.0)")
     ap.add_argument("--no-align", action="store_true", help="skip Procrustes alignment on the anchors")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace --out if it is an existing file (never one of this command's inputs)")
     ap.add_argument("--remesh", choices=REMESH_MODES, default="off",
                     help="remesh the input first (off: a valid file keeps its vertices and indices exactly)")
     args = ap.parse_args(argv)
     with exit_on_user_error(TargetFileError, DeformInputError, IndexMapError):
         out = check_output_file(args.out, OUT_SUFFIXES)  # before any work
+        check_not_overwritten(out, {"the input mesh": args.mesh, "--handles": args.handles,
+                                    "--anchors": args.anchors}, args.overwrite)
         mesh = load_mesh(args.mesh, settings=MeshSettings(remesh=args.remesh))
         h_idx, h_pos = read_targets(args.handles)
         a_idx, a_pos = read_targets(args.anchors)

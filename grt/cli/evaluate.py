@@ -4,7 +4,8 @@ The object is scored on the same episode seeds a red-team run with the same ``bu
 this reproduces a run's nominal score S0 (or re-scores a CrashShape file). The run folder gets
 ``evaluation.json`` (every trial); the console gets the figures and, as its last line, one JSON
 object: ``score, ci95, score_name, score_unit, ci, success_rate, trials, outcomes, wall_s, startup_s,
-trials_s, trials_per_s, object, mesh_hash, saved`` (``saved``: the path of ``evaluation.json``). The
+trials_s, trials_per_s, object, mesh_hash, saved`` (``saved``: the path of ``evaluation.json``). When every
+trial ended in ``sim_error`` there is no score: one ``error:`` line with the first trial's reason, exit code 2. The
 simulator workers are started first, with one line saying so; ``trials_per_s`` is the trials over
 ``trials_s``, the time after start-up that the progress bar measured, so the two rates agree. ``score`` is the task's score (the success rate of a binary task, the mean
 opening of a drawer task...), its interval by the task's ``ci`` setting (:mod:`grt.scores`). The run folder
@@ -24,19 +25,19 @@ import hydra
 import numpy as np
 import trimesh
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
 from grt.config import plain, validate
-from grt.evaluators.base import evaluator_preflight
+from grt.evaluators.base import NothingScoredError, check_scored, evaluator_preflight
 from grt.evaluators.collision import CollisionError
 from grt.geometry.mesh import check_object_size, load_mesh, mesh_hash
 from grt.geometry.prepare import MeshSettings
 from grt.geometry.prepare import describe as describe_preparation
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
-from grt.tasks import preflight
+from grt.targets import build
+from grt.tasks import preflight, task_object
 
 log = logging.getLogger(__name__)
 
@@ -47,10 +48,12 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     Raises:
         grt.objects.UnknownObjectError: neither a built-in object nor an existing file.
         MeshError: an unreadable or unusable mesh file, or one not in meters (``object_scale``).
+        NothingScoredError: every trial ended in ``sim_error`` (``evaluation.json`` is written first).
     """
     score = ScoreSpec.from_task(cfg.task)
     scale = cfg.get("object_scale", 1.0)
-    mesh = load_mesh(cfg.object, scale=scale, settings=MeshSettings.from_config(cfg.get("mesh")))
+    mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), scale=scale,
+                     settings=MeshSettings.from_config(cfg.get("mesh")))
     check_object_size(mesh)  # a mesh in millimetres: refused before any simulation
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # a policy of the wrong kind: refused first
@@ -58,13 +61,13 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None
-    make = instantiate(cfg.evaluator)
     start = time.perf_counter()
     parts, parts_dir = saved_parts(cfg.object, cfg.get("parts", "auto"), scale)
     if parts_dir is not None:
         print(f"collision     the {len(parts)} convex parts the red-team run simulated this shape with "
               f"({parts_dir}); parts=decompose runs CoACD on the file instead", flush=True)
-    with make(task=plain(cfg.task), policy=plain(cfg.policy), nominal=mesh, render_dir=render_dir) as ev:
+    with build(cfg.evaluator, "evaluator", task=plain(cfg.task), policy=plain(cfg.policy), nominal=mesh,
+               render_dir=render_dir) as ev:
         startup = ev.start() if hasattr(ev, "start") else 0.0  # one line before the silent start-up
         begin = time.perf_counter()
         # the base Evaluator interface takes meshes and seeds; the simulator's also takes known parts
@@ -84,6 +87,10 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     record = {**summary, "seeds": seeds, "trials": [asdict(t) for t in result.trials]}
     (output_dir / "evaluation.json").write_text(json.dumps(record, indent=1, default=str))
     summary["saved"] = str(output_dir / "evaluation.json")
+    try:  # every trial a sim_error: no score ("success rate nan" and exit code 0 before), the first reason said
+        check_scored(result, f"the object {cfg.object}")
+    except NothingScoredError as err:
+        raise NothingScoredError(f"{err}; every trial's reason is in {summary['saved']}") from None
     if render_dir and not any(Path(render_dir).glob("*.png")):
         log.warning("render=true, but the task session wrote no pictures (it has no render(path))")
     return summary

@@ -11,12 +11,11 @@ camera. The replay is recorded in ``RUN/replays.jsonl``. Exit code 0 when the ou
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
-from grt.cli._common import exit_on_user_error
+from grt.cli._common import AppParser, exit_on_user_error
 
 KEYS = ("candidate", "seed", "video")
 
@@ -44,7 +43,7 @@ def _parse(items: list[str]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m grt.replay", description=__doc__.splitlines()[0])
+    ap = AppParser("replay", description=__doc__.splitlines()[0])
     ap.add_argument("run", type=Path, help="a red-team run folder")
     ap.add_argument("options", nargs="*", help="candidate=it<t>_c<i>|nominal seed=<N> video=<out.mp4>")
     args = ap.parse_args(argv)
@@ -72,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"video: {result['video']} ({result['frames']} frames)")
         with open(args.run / "replays.jsonl", "a", encoding="utf-8") as f:
             f.write(json.dumps(result) + "\n")
+        print(f"recorded in {args.run / 'replays.jsonl'} (one line per replay: outcome, journal's outcome, video)")
         print(json.dumps({k: result[k] for k in ("candidate", "seed", "outcome", "journal_outcome", "match")}))
     return 0 if result["match"] else 1
 

@@ -5,21 +5,31 @@ its blue-team ``table3*.json`` tables), ``--records`` adds the commit that wrote
 ``--html`` writes ``report.html`` (one self-contained page: a run folder's, or a sweep's linking each run's
 page), ``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
 (``python -m grt.report experiments --update-readmes``). A mistake (no such folder, no or a broken
-``summary.json``, a ``--csv`` path that cannot be written) is one ``error:`` line and exit code 2.
+``summary.json``, a ``--csv`` path that cannot be written) is one ``error:`` line and exit code 2; a run
+stopped before its end is one line naming the command that finishes it (as ``--html`` says on its page).
 """
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
-from grt.cli._common import exit_on_user_error, write_output
+from grt.cli._common import AppParser, exit_on_user_error, write_output
 from grt.errors import check_output_file
-from grt.report.tables import ReportError, aggregate, collect, csv_text, markdown, render, update_readmes
+from grt.report.tables import (
+    ReportError,
+    aggregate,
+    collect,
+    csv_text,
+    markdown,
+    render,
+    unfinished,
+    update_readmes,
+)
+from grt.runfolder import is_run_folder, resume_command
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m grt.report", description=__doc__.splitlines()[0])
+    ap = AppParser("report", description=__doc__.splitlines()[0])
     ap.add_argument("path", type=Path, help="a run folder, a multirun folder or an experiments/ folder")
     ap.add_argument("--csv", type=Path, help="also write the per-run rows as CSV (into an existing folder)")
     ap.add_argument("--markdown", action="store_true",
@@ -48,13 +58,25 @@ def main(argv: list[str] | None = None) -> None:
             rows = collect(args.path)[0] if args.csv else []
         else:
             rows, failed = collect(args.path)
-            if not rows and not failed:
-                raise ReportError(f"no summary.json (or summary_<name>.json) under {args.path}: is it a finished "
-                                  "GRT run folder?")
-            print(markdown(rows, aggregate(rows), failed))
+            waiting = unfinished(args.path)  # a sweep's jobs that never wrote summary.json
+            if not rows and not failed and not waiting:
+                raise ReportError(stopped_run(args.path) or f"no summary.json (or summary_<name>.json) under "
+                                  f"{args.path}: is it a finished GRT run folder?")
+            print(markdown(rows, aggregate(rows), failed, waiting))
         if args.csv:
             write_output(args.csv, csv_text(rows), "--csv PATH")
             print(f"\nwrote {args.csv}")
+
+
+def stopped_run(path: Path) -> str | None:
+    """What to say of a red-team run folder without ``summary.json`` (stopped before its end): how far it got
+    and the command that finishes it, as ``--html`` says; ``None`` for any other folder."""
+    if not is_run_folder(path) or (path / "summary.json").exists():
+        return None
+    journal = path / "journal.jsonl"
+    done = journal.read_bytes().count(b"\n") if journal.is_file() else 0
+    return (f"{path} is a run that has not finished (no summary.json; {done} candidate(s) in its journal): finish "
+            f"it with {resume_command(path)}, then report on it (--html shows what it has so far)")
 
 
 def cli() -> None:

@@ -6,7 +6,7 @@ Examples::
     python -m grt.run object=bottle selector=all optimizer=cma_es budget=paper
     python -m grt.run -m selector=heuristic,all optimizer=topdm,gaussian budget=smoke
     python -m grt.run -m hydra/launcher=slurm experiment=table1_insertion   # the jobs on SLURM (docs/cluster.md)
-    python -m grt.run resume=outputs/grasp/mug/heuristic-topdm/2026-11-23_01-00-00
+    python -m grt.run resume=outputs/grasp/mug/antipodal/heuristic-topdm/2026-11-23_01-00-00
 
 ``main`` resolves the config once and calls :func:`grt.runner.run`, a plain function tests import; it
 returns the run's Final Drop so Hydra sweepers can optimize it.
@@ -14,16 +14,20 @@ returns the run's Final Drop so Hydra sweepers can optimize it.
 A run writes its own config once, when it starts, to ``run_config.yaml`` (read-only), and ``resume=DIR``
 alone is the whole command to continue it (:mod:`grt.runfolder`): :func:`cli` checks DIR and the command
 before Hydra starts, so a refused resume writes nothing anywhere, and hands Hydra the run's own overrides;
-``main`` then runs the saved config. Ctrl-C ends a run with one line naming the command that continues it
+``main`` then runs the saved config. A resume of a finished run with nothing left to do says so and
+changes nothing (before Hydra writes a file); ``resume=`` with no folder (an unset shell variable) and a record
+edited since the start are refused. Ctrl-C ends a run with one line naming the command that continues it
 (exit code 130), and so does SIGTERM, how schedulers and ``timeout`` stop a job (exit code 143).
 
 Every refusal is one ``error: ...`` line on stderr (exit code 2); a run refused before it saved anything
 leaves no folder behind (:func:`grt.runfolder.discard_new`). The folder is made and locked before Hydra
 writes into it (:class:`grt.runfolder.RunFolderCallback`): a second process in it is refused, naming the
-first's PID, and a new run never overwrites a run's record. A full disk or a folder that cannot be written
+first's PID, and a new run starts only in a new or empty folder (never over a run's record or the user's files). A full disk or a folder that cannot be written
 mid-run is one line naming the disk and the command that continues the run (exit code 1). A sweep's job
 that fails writes ``error.txt`` in its folder (with the command that continues it, if it had begun) and the
-sweep goes on; under the submitit launcher (``hydra/launcher=slurm``, :mod:`grt.cli.launchers`) a job that
+sweep goes on, and the sweep's command ends with one line on stderr naming the jobs that failed or never
+finished, exit code 1 (:mod:`grt.cli.sweeps`; a sweep prints its folder when it starts and ends); under the
+submitit launcher (``hydra/launcher=slurm``, :mod:`grt.cli.launchers`) a job that
 died without a result (killed, out of time or memory) ends the sweep's command with one line naming it.
 """
 
@@ -38,23 +42,26 @@ from pathlib import Path
 import hydra
 from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, run_cli
+from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, recorded_config_dir, run_cli
 from grt.cli.launchers import check_launcher, unfinished_job
+from grt.cli.sweeps import STARTED, sweep_end
 from grt.config import validate
 from grt.errors import INTERRUPTED, TERMINATED, Terminated
 from grt.runfolder import (
     discard_new,
     interrupted,
     is_run_folder,
+    load_run_config,
     own_config,
     resume_command,
     resume_overrides,
     storage_error,
 )
-from grt.runner import run
+from grt.runner import AFTER_SEARCH, nothing_to_do, run
 
 log = logging.getLogger("grt.run")
 
@@ -101,6 +108,21 @@ def _say(line: str, also: str = "") -> None:
     print(f"{line} ({also})" if also else line, file=sys.stderr, flush=True)
 
 
+def _finished(overrides: list[str]) -> str | None:
+    """:func:`grt.runner.nothing_to_do` for ``resume=DIR`` with ``overrides`` (checked by ``resume_overrides``),
+    or ``None``: the run's own config with the ``budget.confirm_trials`` given; a setting made after the
+    search (``report``, ``budget.videos``, ``logger``) given is work for the run itself to judge."""
+    parsed = OverridesParser.create().parse_overrides(overrides)
+    run_dir = Path(next(o for o in reversed(parsed) if o.key_or_group == "resume").value())
+    cfg = load_run_config(run_dir)
+    for o in parsed:
+        if any(o.key_or_group == k or o.key_or_group.startswith((f"{k}.", f"{k}/")) for k in AFTER_SEARCH):
+            return None
+        if o.key_or_group == "budget.confirm_trials":
+            OmegaConf.update(cfg, o.key_or_group, o.value(), merge=False)
+    return nothing_to_do(run_dir, cfg)
+
+
 def cli(argv: list[str] | None = None) -> None:
     """``grt-run``: a ``resume=`` is checked, and becomes the run's own command, before Hydra starts.
 
@@ -115,9 +137,15 @@ def cli(argv: list[str] | None = None) -> None:
         if launches:  # hydra/launcher=slurm where SLURM is missing: refused before anything is written
             check_launcher(args.overrides)
         if any("resume=" in arg for arg in args.overrides):
-            args.overrides = resume_overrides(args.overrides)
+            given, args.overrides = args.overrides, resume_overrides(args.overrides)
+            args.config_dir = args.config_dir or recorded_config_dir(args.overrides)  # the user's config folder
+            line = None if args.multirun or args.help or args.hydra_help else _finished(given)
+            if line is not None:  # said before Hydra starts: not a file of the run is touched
+                print(line, flush=True)
+                return
 
     def launch() -> None:
+        started = len(STARTED)
         try:
             _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR, config_name="run")
         except Exception as exc:
@@ -126,5 +154,9 @@ def cli(argv: list[str] | None = None) -> None:
                 raise
             _say(f"error: {line}")
             raise SystemExit(1) from None
+        if len(STARTED) > started:  # a sweep ran: its folder, its jobs, and exit code 1 when some failed
+            code = sweep_end(STARTED[-1])
+            if code:
+                raise SystemExit(code)
 
     run_cli(launch)

@@ -1,4 +1,6 @@
-"""``grt-select`` (``python -m grt.select object=NAME|PATH selector=...``): choose handles and anchors on one object.
+"""``grt-select`` (``python -m grt.select [task=NAME] object=NAME|PATH selector=...``): choose handles and anchors
+on one object, for a task (``task=``, as ``grt.run`` takes it: its object by default, its description for the
+VLM's prompt, its regions for ``selector=manual``).
 
 Writes into Hydra's run folder, as ``grt.run`` does (``hydra.run.dir=PATH``, or ``out_dir=PATH`` for
 short; ``outputs/select/<object>/<selector>/<time>`` by default): ``handles.json`` (vertex indices,
@@ -37,6 +39,8 @@ from grt.optimizers.smoothness import project_to_budget
 from grt.optimizers.topdm import TOPDMOptimizer
 from grt.selectors.base import HandleSet
 from grt.selectors.panel import render_panel
+from grt.targets import build
+from grt.tasks import task_object
 
 
 def panel_png(mesh: trimesh.Trimesh, result: HandleSet) -> bytes:
@@ -49,7 +53,7 @@ def panel_png(mesh: trimesh.Trimesh, result: HandleSet) -> bytes:
 
 def select(object_spec: str, task: str, selector, out_dir: str | Path, object_scale: float = 1.0,
            mesh_settings: MeshSettings | None = None, probe: dict | None = None,
-           deformer: dict | None = None) -> dict:
+           deformer: dict | None = None, task_name: str | None = None) -> dict:
     """Run a selector on an object and write ``handles.json`` and ``panel.png``.
 
     Args:
@@ -63,6 +67,7 @@ def select(object_spec: str, task: str, selector, out_dir: str | Path, object_sc
         probe: ``sigmas``, ``candidates``, ``seed``, ``tau`` of :func:`probe_plausibility`, whose rows go to
             ``probe.json`` and the record's ``probe`` (``None``: no probe).
         deformer: the deformer settings the probe uses (``grt.run``'s ``deformer`` block).
+        task_name: the task's name (``task=NAME``), recorded with its description.
 
     Returns:
         The ``handles.json`` record (with ``mesh_preparation``: repairs, remesh, fidelity figures).
@@ -81,8 +86,8 @@ def select(object_spec: str, task: str, selector, out_dir: str | Path, object_sc
     check_object_size(mesh)
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     result = selector.select(mesh, task)
-    record = {"object": str(object_spec), "task": task, "selector": type(selector).__name__,
-              **result.to_dict(mesh)}
+    record = {"object": str(object_spec), "task": task, **({"task_name": task_name} if task_name else {}),
+              "selector": type(selector).__name__, **result.to_dict(mesh)}
     record["units"] = "positions in meters (the object's frame); indices are mesh vertex indices"
     record["mesh_preparation"] = mesh.metadata.get("grt_prepare")
     for key in ("semantic_object_label", "expected_transformations"):
@@ -166,7 +171,8 @@ def describe_probe(rows: list[dict]) -> str:
 
 def describe(record: dict, out_dir: str | Path) -> str:
     """A short human-readable summary of a ``handles.json`` record."""
-    lines = [f"{record['selector']} on {record['object']!r} for task {record['task']!r}:",
+    task = f"task={record['task_name']}" if record.get("task_name") else f"task {record['task']!r}"
+    lines = [f"{record['selector']} on {record['object']!r} for {task}:",
              f"  handles ({len(record['handles'])}): {record['handles']}",
              f"  anchors ({len(record['anchors'])}): {record['anchors']}"]
     if "semantic_object_label" in record:
@@ -182,14 +188,16 @@ def describe(record: dict, out_dir: str | Path) -> str:
 def main(cfg: DictConfig) -> None:
     """Hydra entry point (conf/select.yaml): writes into Hydra's run folder, as ``grt.run``."""
     with exit_on_user_error():
-        validate(cfg)
+        validate(cfg, classes=("selector",))  # the task's session is not built here (it imports the simulator)
         probe = cfg.get("probe") or {}
         check_probe(probe)
         out_dir = Path(cfg.paths.output_dir)
-        selector = hydra.utils.instantiate(cfg.selector)
+        selector = build(cfg.selector, "selector")
         settings = MeshSettings.from_config(cfg.get("mesh"))
-        record = select(cfg.object, cfg.task, selector, out_dir, cfg.get("object_scale", 1.0), settings,
-                        probe=dict(probe) if probe.get("sigmas") else None, deformer=cfg.get("deformer"))
+        record = select(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), str(cfg.task.description), selector,
+                        out_dir, cfg.get("object_scale", 1.0), settings,
+                        probe=dict(probe) if probe.get("sigmas") else None, deformer=cfg.get("deformer"),
+                        task_name=str(cfg.task.name))
     print(describe(record, out_dir))
     if record.get("probe"):
         print(describe_probe(record["probe"]["rows"]))

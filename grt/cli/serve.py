@@ -4,7 +4,8 @@ The policy runs here; a red-team run elsewhere reaches it with ``policy=remote p
 line printed is that URL. A batched policy (insertion, drawer) is served for the task of the ``task``
 group (``task=drawer policy=drawer_state``): its observation groups and action size go into the hello,
 and a checkpoint trained for another task is refused here. A grasp planner (``task=grasp
-policy=antipodal``) is served with its ``plan``. Ctrl-C stops the server.
+policy=antipodal``) is served with its ``plan``. Ctrl-C stops the server (exit code 0); SIGTERM too, with
+exit code 143 as every GRT app. A ``serve.port`` outside 0-65535 is one ``error:`` line, exit code 2.
 """
 
 from __future__ import annotations
@@ -16,14 +17,15 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 import grt
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
-from grt.config import plain
+from grt.config import plain, validate
+from grt.errors import TERMINATED, Terminated
 from grt.policies.base import BatchedPolicy, GraspObservation, GraspPolicy, PolicyServerError
 from grt.policy_server import PolicyServer
+from grt.targets import build
 from grt.tasks import session_class
 
 log = logging.getLogger("grt.serve")
@@ -35,10 +37,14 @@ def make_server(cfg: DictConfig) -> PolicyServer:
     Raises:
         PolicyServerError: a policy GRT cannot serve, or one made for another task.
     """
+    port = cfg.serve.port
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:  # -5: an OverflowError
+        raise PolicyServerError(f"serve.port={port}: a port is a whole number from 1 to 65535 (0: any free one, "
+                                "the first line printed says which)")
     task = plain(cfg.task)
     session = session_class(task)
     task_name = getattr(session, "task_name", "") or task["name"]
-    policy = instantiate(cfg.policy)
+    policy = build(cfg.policy, "policy")
     if "torch" in sys.modules and cfg.serve.threads:
         sys.modules["torch"].set_num_threads(int(cfg.serve.threads))
     choice = HydraConfig.get().runtime.choices.get("policy", "policy") if HydraConfig.initialized() else "policy"
@@ -87,6 +93,7 @@ def _version(policy_cfg: DictConfig) -> str:
 def main(cfg: DictConfig) -> None:
     """Hydra entry point: print the URL, then serve until Ctrl-C."""
     with exit_on_user_error():
+        validate(cfg, classes=("policy", "task.session"))
         server = make_server(cfg)
     print(server.url, flush=True)
     info = server.info
@@ -95,7 +102,10 @@ def main(cfg: DictConfig) -> None:
           + ("; token required" if server.token else "") + "); Ctrl-C stops", flush=True)
     try:
         server.serve_forever()
-    except KeyboardInterrupt:
+    except Terminated:  # a scheduler's or `kill`'s stop: exit code 143, as every GRT app
+        print("terminated (SIGTERM)", file=sys.stderr, flush=True)
+        raise SystemExit(TERMINATED) from None
+    except KeyboardInterrupt:  # Ctrl-C: how a server is stopped by hand (exit code 0)
         print("stopped", flush=True)
     finally:
         server.shutdown()

@@ -35,24 +35,30 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-import grt.config  # noqa: F401 - registers schemas and resolvers
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
+from grt.config import validate  # also registers schemas and resolvers
 from grt.runfolder import TRAINING, ResumeError, discard_new, resume_or
 
 
 @hydra.main(config_path=CONF_DIR, config_name="train_policy", version_base="1.3")
 def main(cfg: DictConfig) -> float:
-    from grt.rl.policy_training import resumed_config, train_policy  # torch: not for a refused command
-
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with exit_on_user_error():
         try:
+            if not cfg.resume:
+                validate(cfg)  # every class imports and takes its keys, nothing unread: before any file or torch
+            from grt.rl.policy_training import (  # torch: not for a refused command
+                resumed_config,
+                train_policy,
+            )
+
             if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
                 resume = Path(resume_or(cfg.resume, ""))
                 if resume.resolve() != out_dir.resolve():
                     raise ResumeError(f"resume={cfg.resume} with hydra.run.dir={out_dir}: a training goes on in its "
                                       f"own folder; give resume={cfg.resume} alone")
                 cfg = resumed_config(cfg, out_dir)
+                validate(cfg)  # the training's own config: its classes must still import
             result = train_policy(cfg, out_dir)
         except Exception as exc:
             found = find_user_error(exc)
@@ -62,12 +68,25 @@ def main(cfg: DictConfig) -> float:
             print(f"error: {found}" + (f" ({removed})" if removed else ""), file=sys.stderr)
             raise SystemExit(2) from None
     print(f"trained {result['iterations']} iterations ({result['steps']} steps) in {result['wall_s']:.0f} s; "
-          f"best training success {result['best_success']:.2f}; files in {out_dir}")
+          f"{training_success(result, cfg.train.get('patience'))}; files in {out_dir}")
     ev = result.get("evaluation")
     if ev:
         print(f"evaluation: {cfg.task.score} {ev['score']:.4g} (success {ev['success_rate']:.3f}) over "
               f"{ev['trials']} trials {ev['outcomes']}")
-    return float(result["best_success"])
+    best, last = result.get("best_success"), result.get("last_success")
+    return float(best if best is not None else last if last is not None else float("nan"))
+
+
+def training_success(result: dict, patience) -> str:
+    """The training's success in words: the best over ``train.patience`` iterations (``best.pt``'s), or, when
+    fewer iterations ran, the last ones' (never the -1 the best starts from)."""
+    best, last, window = result.get("best_success"), result.get("last_success"), result.get("last_window", 0)
+    if best is not None:
+        return f"best training success {best:.2f} (over {patience} iterations)"
+    if last is None:
+        return "no training episode ended, so no training success"
+    return (f"training success {last:.2f} over the last {window} iteration{'s' if window != 1 else ''} (no best: "
+            f"that needs train.patience={patience} iterations in a row)")
 
 
 def cli(argv: list[str] | None = None) -> None:

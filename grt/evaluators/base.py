@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
+from grt.errors import UserError
 from grt.metrics import score_interval
 from grt.tasks.base import SIM_ERROR, TrialOutcome
 
@@ -77,6 +78,22 @@ class CandidateResult:
         low, high = self.ci95(ci)
         return {"score": self.score, "success_rate": self.success_rate, "trials": len(self.trials),
                 "outcomes": self.outcomes, "ci95": [low, high], "wall_s": self.wall_s}
+
+
+class NothingScoredError(UserError):
+    """Every trial of an object ended in ``sim_error`` (a policy's unusable output, a simulator that cannot
+    build the object...): it has no score, and nothing built on it (S0, a drop) could be trusted."""
+
+
+def check_scored(result: CandidateResult, what: str) -> None:
+    """Raise :class:`NothingScoredError` when every trial of ``result`` (of ``what``, e.g. "the nominal object")
+    ended in ``sim_error``, naming the first trial's reason."""
+    if not result.trials or result.sim_errors < len(result.trials):
+        return
+    first = next((t for t in result.trials if t.info.get("error")), result.trials[0])
+    reason = str(first.info.get("error") or "no reason recorded").strip().splitlines()[0][:400]
+    raise NothingScoredError(f"every trial on {what} ({len(result.trials)}) ended in sim_error, so it has no score; "
+                             f"the first (seed {first.seed}): {reason}")
 
 
 class Evaluator(ABC):

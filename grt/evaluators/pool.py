@@ -39,6 +39,7 @@ import trimesh
 
 from grt.evaluators.base import SIM_ERROR
 from grt.policies.base import PolicyInterrupted, PolicyServerError, PolicyUnavailable
+from grt.targets import worker_error
 from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)
@@ -313,6 +314,7 @@ class _Worker:
     ready: bool = False
     job: Job | None = None
     last_message: float = field(default_factory=time.monotonic)
+    loaded: bool = False  # its job's object is loaded and its trials planned (the worker said "loaded")
 
 
 def _reset_foreign_start_method() -> None:
@@ -335,7 +337,8 @@ class WorkerPool:
         workers: number of processes.
         start_method: ``"spawn"`` or ``"forkserver"`` (``fork`` would copy simulator state).
         max_retries: re-runs of a seed whose worker died, before it becomes ``sim_error``.
-        trial_timeout: seconds without any message from a busy worker before it is killed (a hang).
+        trial_timeout: seconds without any message from a busy worker before it is killed (a hang); while it
+            loads a job (which may plan every trial of the job first) that many seconds per trial of the job.
         startup_timeout: seconds a worker may take to build its session.
         threads: CPU threads per worker for BLAS/OpenMP, torch and the lavapipe renderer (``None``:
             the libraries' defaults). Workers already fill the cores; more threads only contend.
@@ -388,7 +391,7 @@ class WorkerPool:
         """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order.
 
         Raises:
-            RuntimeError: a worker cannot build its session (config or import error).
+            grt.targets.ClassError: a worker cannot build its session (one line; the traceback in a file).
         """
         self.start()
         pending, crashes = deque(jobs), {}
@@ -406,7 +409,7 @@ class WorkerPool:
         clock should not count).
 
         Raises:
-            RuntimeError: a worker cannot build its task session.
+            grt.targets.ClassError: a worker cannot build its task session (one line; the traceback in a file).
         """
         self.start()
         while not all(w.ready for w in self.workers):
@@ -427,7 +430,7 @@ class WorkerPool:
     def _assign(self, pending: deque) -> None:
         for w in self.workers:
             if w.ready and w.job is None and pending:
-                w.job = pending.popleft()
+                w.job, w.loaded = pending.popleft(), False
                 w.last_message = time.monotonic()
                 # A worker that died while idle is noticed through its sentinel; the job is re-queued.
                 with contextlib.suppress(OSError):
@@ -437,17 +440,25 @@ class WorkerPool:
         if w.ready and w.job is None:  # idle: nothing to wait for
             return False
         limit = self.trial_timeout if w.ready else self.startup_timeout
+        if limit is not None and w.ready and not w.loaded and w.job is not None:
+            limit *= max(1, len(w.job.seeds))  # loading a job may plan all its trials first (batched planners)
         return limit is not None and time.monotonic() - w.last_message > limit
 
     def _drain(self, w: _Worker, on_trial, pending: deque, crashes: dict) -> None:
-        try:
-            while w.conn.poll():
-                self._handle(w, w.conn.recv(), on_trial)
-        except (EOFError, OSError):  # its end of the pipe closed: the process is exiting
-            w.proc.join(timeout=5.0)
-            if w.proc.is_alive():
-                w.proc.kill()
-                w.proc.join()
+        while True:
+            try:
+                if not w.conn.poll():
+                    break
+                msg = w.conn.recv()
+            except (EOFError, OSError):  # its end of the pipe closed: the process is exiting
+                w.proc.join(timeout=5.0)
+                if w.proc.is_alive():
+                    w.proc.kill()
+                    w.proc.join()
+                break
+            # outside the try: an error of on_trial (a journal that cannot be written) is the caller's, not a
+            # dead worker's (it was once taken for one, and the candidate's result silently lost)
+            self._handle(w, msg, on_trial)
         if not w.proc.is_alive():
             w.proc.join()
             self._replace(w, on_trial, pending, crashes, f"died (exit code {w.proc.exitcode})")
@@ -457,13 +468,15 @@ class WorkerPool:
         w.last_message = time.monotonic()
         if kind == "fatal":
             self.close()
-            raise RuntimeError(f"an evaluator worker could not build its task session:\n{payload}")
+            raise worker_error("task.session", str(self.task["session"].get("_target_")), payload)
         if kind == "unavailable":
             self.close()
             raise PolicyServerError(f"{payload}; the evaluation stopped (nothing of its unfinished trials "
                                     "was recorded)")
         if kind == "ready":
             w.ready = True
+        elif kind == "loaded":
+            w.loaded = True
         elif kind == "trial" and w.job is not None:
             _job_id, seed, outcome, seconds = payload
             w.job.seeds.remove(seed)

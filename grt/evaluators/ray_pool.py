@@ -42,6 +42,7 @@ from grt.errors import UserError
 from grt.evaluators.pool import THREAD_VARIABLES, Job, blame_first_seed, worker_limits
 from grt.evaluators.sim import SimEvaluator
 from grt.policies.base import PolicyServerError
+from grt.targets import worker_error
 from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)
@@ -362,7 +363,10 @@ class RayPool:
                     a.inflight.popleft()
                     self._answer(a, what, answer, on_trial)
                     a.since = time.monotonic()
-                if a.inflight and self._late(a, self.trial_timeout, a.since):
+                loading = a.inflight and a.inflight[0][1] == "load" and a.job is not None  # may plan every trial
+                limit = self.trial_timeout * max(1, len(a.job.seeds)) if loading and self.trial_timeout else \
+                    self.trial_timeout
+                if a.inflight and self._late(a, limit, a.since):
                     log.warning("Ray actor on %s silent for too long: killing it", node_label(a.node))
                     self._kill(a)
                     self._replace(a, on_trial, pending, crashes, "timed out (hung)")
@@ -394,7 +398,8 @@ class RayPool:
         if status == "unavailable":
             raise PolicyServerError(f"{report.get('error')}; the evaluation stopped (nothing of its unfinished trials "
                                     "was recorded)")
-        raise RuntimeError(f"an evaluator actor on {where} could not build its task session:\n{report.get('error')}")
+        raise worker_error("task.session", str(self.task["session"].get("_target_")), str(report.get("error")),
+                           f"an evaluator actor on {where}")
 
     def _answer(self, a: _Actor, what, answer, on_trial) -> None:
         if what == "load":

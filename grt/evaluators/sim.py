@@ -24,9 +24,29 @@ from grt.console import progress as progress_bar
 from grt.evaluators.base import CandidateResult, Evaluator
 from grt.evaluators.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
 from grt.evaluators.pool import Job, WorkerPool, sim_error
-from grt.tasks.base import TrialOutcome
+from grt.tasks import session_class
+from grt.tasks.base import FALLBACK_TRIAL_TIMEOUT, TRIAL_TIMEOUT_MARGIN, TrialOutcome
 
 log = logging.getLogger(__name__)
+
+
+def default_trial_timeout(task: dict, policy: dict | None) -> float:
+    """``evaluator.trial_timeout=auto``: :data:`~grt.tasks.base.TRIAL_TIMEOUT_MARGIN` times the longest one trial
+    of the task takes (:meth:`grt.tasks.base.TaskSession.trial_seconds`: its episode length at measured
+    worst-case step times). :data:`~grt.tasks.base.FALLBACK_TRIAL_TIMEOUT` for a task that gives no bound (a
+    user's, unless its session says), and at least that for a served policy: how long its replies take is the
+    server's (each is bounded by ``policy.timeout`` in the worker, where a stalled server is caught).
+    """
+    try:
+        cls = session_class(task)
+    except Exception:  # noqa: BLE001 - a module only the workers import (a cluster's): no bound to read here
+        return FALLBACK_TRIAL_TIMEOUT
+    seconds = cls.trial_seconds(**{k: v for k, v in task["session"].items() if k != "_target_"})
+    if seconds is None:
+        return FALLBACK_TRIAL_TIMEOUT
+    derived = round(TRIAL_TIMEOUT_MARGIN * seconds, 1)
+    served = str((policy or {}).get("_target_", "")).startswith("grt.policies.remote.")
+    return max(derived, FALLBACK_TRIAL_TIMEOUT) if served else derived
 
 
 class SimEvaluator(Evaluator):
@@ -45,7 +65,9 @@ class SimEvaluator(Evaluator):
         max_hull_vertices: cap on each convex part's vertex count (64: GPU PhysX).
         chunk_size: trials per job; ``None`` splits each candidate's seeds over the workers.
         max_retries: re-runs of a seed whose worker process died, before it is a ``sim_error``.
-        trial_timeout: seconds a trial may run before its worker is deemed hung and restarted.
+        trial_timeout: seconds a worker running a trial may stay silent before it is deemed hung and restarted;
+            ``"auto"`` (the default): the task's own, from its episode length (:func:`default_trial_timeout`);
+            ``None``: never.
         start_method: ``"spawn"`` or ``"forkserver"``.
         threads: CPU threads per worker (BLAS/OpenMP, torch, lavapipe); ``None``: library defaults.
         progress: show the trials' progress (a tqdm bar on a terminal, plain lines in a log: :mod:`grt.console`).
@@ -55,7 +77,7 @@ class SimEvaluator(Evaluator):
     def __init__(self, task: dict, policy: dict, workers: int = 2, collision: str = "fast",
                  nominal: trimesh.Trimesh | None = None, coacd: dict | None = None,
                  cache_dir: str | None = None, max_hull_vertices: int = MAX_HULL_VERTICES,
-                 chunk_size: int | None = None, max_retries: int = 2, trial_timeout: float | None = 600.0,
+                 chunk_size: int | None = None, max_retries: int = 2, trial_timeout: float | str | None = "auto",
                  start_method: str = "spawn", threads: int | None = 1, progress: bool = True,
                  render_dir: str | None = None):
         if not isinstance(task, dict) or "session" not in task:
@@ -64,6 +86,12 @@ class SimEvaluator(Evaluator):
             raise ValueError("policy must be a plain dict (OmegaConf.to_container it)")
         if chunk_size is not None and chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1 or None, got {chunk_size}")
+        if trial_timeout == "auto":
+            trial_timeout = default_trial_timeout(task, policy)
+        elif trial_timeout is not None and not float(trial_timeout) > 0:
+            raise ValueError(f"evaluator.trial_timeout={trial_timeout}: give seconds > 0, auto (the task's own) or "
+                             "null (never)")
+        self.trial_timeout = trial_timeout
         self.collision = make_collision(collision, nominal, coacd, cache_dir, max_hull_vertices)
         self.collision_kind = collision
         self.pool = self._make_pool(task, policy, workers, start_method, max_retries, trial_timeout, threads)
@@ -82,7 +110,7 @@ class SimEvaluator(Evaluator):
         host = socket.gethostname()
         return {"backend": "pool", "address": None, "nodes": 1, "actors": self.workers,
                 "trials_per_node": {host: self.pool.trials} if self.pool.trials else {},
-                "workers_replaced": self.pool.restarts}
+                "workers_replaced": self.pool.restarts, "trial_timeout": self.trial_timeout}
 
     # ------------------------------------------------------------------------------- interface
     def start(self, say=lambda line: print(line, flush=True)) -> float:

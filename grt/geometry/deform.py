@@ -244,7 +244,16 @@ class JacobianFieldDeformer:
         return out[0] if single else out
 
     def _exact(self, thetas: np.ndarray) -> np.ndarray:
-        return self.v0[None] + np.einsum("vh,nhc->nvc", self.basis, thetas, optimize=True)
+        # One (V, H) @ (H, 3) product per candidate into one preallocated array: a population in one
+        # einsum (or one (V, H) @ (H, 3N) product) went to a threaded BLAS call and through transposed
+        # copies, 30 ms for ten candidates where ten of these products take 0.2-0.4 ms
+        # (docs/benchmarks.md, "Deformation"; python -m grt.bench deform measures both).
+        basis = self.basis
+        out = np.empty((len(thetas), *self.v0.shape))
+        for n, theta in enumerate(thetas):
+            np.matmul(basis, theta, out=out[n])
+        out += self.v0
+        return out
 
     def solve_vertices(self, J: np.ndarray) -> np.ndarray:
         """Poisson solve for a batch of Jacobian fields: ``(N, 3F, 3)`` -> ``(N, V, 3)``."""

@@ -10,6 +10,7 @@ names the problem and the fix. A mesh is never silently used as it came.
 from __future__ import annotations
 
 import hashlib
+import logging
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -19,12 +20,22 @@ import trimesh
 
 from grt.geometry import fidelity
 from grt.geometry.indices import file_vertices
-from grt.geometry.prepare import MeshSettings, Solid, fix_flat_faces, remesh, remesh_decision, solidify
+from grt.geometry.prepare import (
+    MeshSettings,
+    Solid,
+    fix_flat_faces,
+    remesh,
+    remesh_decision,
+    say_step,
+    solidify,
+    target_faces,
+)
 from grt.geometry.quality import nominal_crossings
 from grt.geometry.validation import MeshError, mesh_problems
 from grt.objects import UnknownObjectError, get_object, list_objects
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
+log = logging.getLogger("grt.mesh")
 
 
 # --------------------------------------------------------------------------------------- loading
@@ -178,6 +189,9 @@ def _read_file(path: Path) -> trimesh.Trimesh:
         raise MeshError(f"{path}: the file is empty. Export the mesh again (OBJ/STL/PLY/GLB).")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise MeshError(f"{path}: unsupported mesh format {path.suffix!r}; use one of {MESH_SUFFIXES}.")
+    size = path.stat().st_size
+    if size > 20e6:  # ~400k faces of binary STL: reading alone takes a while
+        log.info("reading %s (%.0f MB)", path, size / 1e6)
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many kinds of errors on corrupt input
@@ -234,7 +248,11 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
                         "or load it with repair=True.")
     solid = Solid(out, out)
     edge = settings.edge_length * float(np.linalg.norm(out.extents))  # target edge length, mesh units
+    say_step(len(mesh.faces), "it is cleaned up, remeshed if too fine (mesh.remesh=%s, to about %d faces) and "
+             "compared with the input (fidelity); each step is said as it starts", settings.remesh,
+             target_faces(out, edge))
     if problems:
+        say_step(len(mesh.faces), "cleaning up (found: %s)", "; ".join(problems)[:200])
         solid = solidify(_basic_cleanup(out, repairs), settings.components, repairs, edge,
                          settings.watertight_resolution)
     out = solid.mesh
@@ -254,6 +272,9 @@ def prepare_mesh(mesh: trimesh.Trimesh, repair: bool = True, components: str | N
     t2 = time.perf_counter()
     exact = not (solid.moved or remeshed)
     volume = solid.reference_volume if solid.reference_volume is not None else _closed_volume(mesh)
+    if not exact:
+        say_step(len(mesh.faces), "measuring the fidelity (Hausdorff and Chamfer distance, volume) of the %d-face "
+                 "result against the input", len(out.faces))
     figures = fidelity.unchanged() if exact else fidelity.measure(solid.reference, out, mm_per_unit, volume)
     t3 = time.perf_counter()
     _check_fidelity(figures, settings, repairs, out, mm_per_unit,
@@ -457,4 +478,14 @@ def align_to_anchors(vertices: np.ndarray, anchors: np.ndarray, nominal_anchor_p
         ``(..., V, 3)`` aligned vertices.
     """
     R, t = procrustes(vertices[..., anchors, :], nominal_anchor_pos)
-    return vertices @ np.swapaxes(R, -1, -2) + t[..., None, :]
+    if vertices.ndim == 2:
+        return vertices @ R.T + t
+    # A population one mesh at a time into one array: the broadcast (N, V, 3) @ (N, 3, 3) product took
+    # 4-5 ms for ten meshes of 5k vertices where this takes ~1 ms (python -m grt.bench deform).
+    flat = vertices.reshape(-1, *vertices.shape[-2:])
+    rot, shift = R.reshape(-1, 3, 3), t.reshape(-1, 3)
+    out = np.empty(flat.shape)
+    for n in range(len(flat)):
+        np.matmul(flat[n], rot[n].T, out=out[n])
+        out[n] += shift[n]
+    return out.reshape(vertices.shape)

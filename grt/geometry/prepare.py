@@ -24,6 +24,8 @@ Steps (each recorded in ``mesh.metadata["grt_repairs"]``, the figures in ``mesh.
 
 from __future__ import annotations
 
+import logging
+import time
 from dataclasses import asdict, dataclass, fields
 
 import gpytoolbox
@@ -46,6 +48,16 @@ SLIVER_ASPECT, SLIVER_SHARE = 10.0, 0.01
 JOIN_GROWTH = 0.1  # bodies closer than 2x this times the target edge are joined
 CREASE_DEG = 30.0  # dihedral angle of a sharp edge kept by the remeshing
 DECIMATE_VOLUME_TOL = 0.005  # a decimation stage that changes the volume by more than 0.5% is not kept
+# An input above this many faces says each step of its preparation as it starts (a 2M-face scan took 5.5 min
+# in silence: reading, clean-up, decimation stages, remeshing, the fidelity measure each take a while).
+LARGE_FACES = 100_000
+log = logging.getLogger("grt.mesh")
+
+
+def say_step(faces: int, text: str, *args) -> None:
+    """Log (INFO, ``grt.mesh``) a step of preparing an input of ``faces`` faces as it starts, if it is large."""
+    if faces > LARGE_FACES:
+        log.info("preparing a %d-face mesh: " + text, faces, *args)
 
 
 @dataclass(frozen=True)
@@ -329,8 +341,12 @@ def decimate(mesh: trimesh.Trimesh, faces: int, repairs: list[str]) -> trimesh.T
     """
     volume = abs(float(mesh.volume))
     current, stop = mesh, ""
+    say_step(len(mesh.faces), "decimating towards %d faces in halving stages (quadric)", faces)
     while len(current.faces) > faces:
+        start = time.perf_counter()
         step = current.simplify_quadric_decimation(face_count=max(faces, len(current.faces) // 2))
+        say_step(len(mesh.faces), "decimation stage %d -> %d faces (%.0f s)", len(current.faces), len(step.faces),
+                 time.perf_counter() - start)
         ratio = abs(float(step.volume)) / volume if volume > 0 else float("nan")
         if not _closed(step):
             stop = f"the next stage ({len(step.faces)} faces) opened the surface"
@@ -371,6 +387,8 @@ def remesh(mesh: trimesh.Trimesh, edge: float, repairs: list[str], fix: str = ""
         v, f = trimesh.remesh.subdivide_to_size(v, f, max_edge=edge)
         fixed = crease_vertices(trimesh.Trimesh(v, f, process=False))
     left = []
+    say_step(len(mesh.faces), "remeshing isotropically to ~%d faces (gpytoolbox, %d iterations)", budget,
+             REMESH_ITERATIONS)
     for h in (edge, 0.93 * edge, 1.07 * edge):
         try:
             rv, rf = gpytoolbox.remesh_botsch(np.array(v, np.float64), np.array(f, np.int32), i=REMESH_ITERATIONS,

@@ -23,7 +23,7 @@ from grt.errors import UserError
 from grt.objects.catalog import BUILDERS, DESCRIPTIONS, DRAWER, INSERTION
 from grt.objects.shapes import clean_slivers, to_trimesh
 
-__all__ = ["UnknownObjectError", "get_object", "list_objects", "object_info", "object_regions"]
+__all__ = ["UnknownObjectError", "get_object", "list_objects", "object_info", "object_regions", "object_task"]
 
 
 class UnknownObjectError(UserError):
@@ -80,8 +80,21 @@ def object_regions(name: str) -> dict[str, np.ndarray]:
     return {k: v.copy() for k, v in _build(name)[1].items()}
 
 
+def object_task(name: str) -> str:
+    """The task a built-in object is made for: ``insertion`` (a plug standing on its connector, with the
+    head length and grip height the socket is built from), ``drawer`` (a handle with its grasp point) or
+    ``grasp`` (a household object resting on the table; ``plug`` lies on its side and is one of these).
+
+    Raises:
+        UnknownObjectError: ``name`` is not built in.
+    """
+    _check(name)
+    return "insertion" if name in INSERTION else "drawer" if name in DRAWER else "grasp"
+
+
 def object_info(name: str) -> dict:
-    """Facts about a built-in object: ``description`` (used in prompts), ``regions`` (names), for
+    """Facts about a built-in object: ``description`` (used in prompts), ``regions`` (names), ``task`` (the
+    task it is made for, :func:`object_task`), for
     plugs ``insertion`` (``head_length``, ``grip_height`` in meters), and for drawer handles
     ``drawer`` (``grasp``: ``[x, y, z]`` grasp point on the grip's axis, ``grip_radius``; meters, in
     the frame :func:`get_object` returns).
@@ -90,7 +103,7 @@ def object_info(name: str) -> dict:
         UnknownObjectError: ``name`` is not built in.
     """
     _check(name)
-    info = {"description": DESCRIPTIONS[name], "regions": sorted(_build(name)[1])}
+    info = {"description": DESCRIPTIONS[name], "regions": sorted(_build(name)[1]), "task": object_task(name)}
     if name in INSERTION:
         info["insertion"] = dict(INSERTION[name])
     if name in DRAWER:

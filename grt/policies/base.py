@@ -108,6 +108,60 @@ class PolicyUnavailable(BaseException):
     judged, and the run can be finished later (``resume=DIR``). A ``BaseException`` for the same reason."""
 
 
+class PolicyOutputError(RuntimeError):
+    """A policy's output the task cannot use: non-finite numbers (a NaN grasp pose or action) or actions of
+    the wrong shape. Raised in the trial, which becomes a ``sim_error`` whose reason names the policy (never a
+    physical outcome such as ``missed``); the red-team run and ``grt.evaluate`` stop in one line when every
+    trial on the object ends so (:func:`grt.evaluators.base.check_scored`)."""
+
+
+def policy_name(policy) -> str:
+    """``module.Class`` of a policy (and what a served one calls itself), for messages."""
+    cls = type(policy)
+    name = getattr(policy, "name", None)
+    return f"{cls.__module__}.{cls.__qualname__}" + (f" ({name})" if isinstance(name, str) and name else "")
+
+
+def check_actions(actions, shape: tuple[int, ...], policy) -> np.ndarray:
+    """``actions`` as an array of ``shape``, finite (float64).
+
+    Raises:
+        PolicyOutputError: another shape, or a NaN/inf (names the policy, what it returned and what the task takes).
+    """
+    try:
+        out = np.asarray(actions, np.float64)
+    except (TypeError, ValueError) as err:
+        raise PolicyOutputError(f"policy {policy_name(policy)} returned {type(actions).__name__} ({err}), not "
+                                f"actions of shape {shape}") from None
+    if out.shape != tuple(shape):
+        raise PolicyOutputError(f"policy {policy_name(policy)} returned actions of shape {out.shape}; the task "
+                                f"takes {tuple(shape)}: fix the policy's act()")
+    if not np.all(np.isfinite(out)):
+        raise PolicyOutputError(f"policy {policy_name(policy)} returned a non-finite action {out.round(4).tolist()}")
+    return out
+
+
+def check_grasps(grasps, policy) -> list[Grasp]:
+    """A grasp planner's ``grasps``, each with a finite ``(4, 4)`` pose, width and score.
+
+    Raises:
+        PolicyOutputError: names the policy and the grasp.
+    """
+    for i, grasp in enumerate(grasps):
+        try:
+            pose, width, score = np.asarray(grasp.pose, np.float64), float(grasp.width), float(grasp.score)
+        except (AttributeError, TypeError, ValueError) as err:
+            raise PolicyOutputError(f"policy {policy_name(policy)} returned grasp {i} that is no Grasp(pose, width, "
+                                    f"score) ({err})") from None
+        if pose.shape != (4, 4):
+            raise PolicyOutputError(f"policy {policy_name(policy)} returned grasp {i} with a pose of shape "
+                                    f"{pose.shape}, not (4, 4)")
+        if not (np.all(np.isfinite(pose)) and np.isfinite(width) and np.isfinite(score)):
+            raise PolicyOutputError(f"policy {policy_name(policy)} returned a non-finite grasp (grasp {i}: pose "
+                                    f"{pose.round(4).tolist()}, width {width}, score {score})")
+    return list(grasps)
+
+
 class GraspPredictor(ABC):
     """A point-cloud grasp predictor (one inference)."""
 
@@ -185,12 +239,27 @@ class GraspStepPolicy(ABC):
         ``None`` when done (the task then lifts and shakes)."""
 
 
+class EnvDriverPolicy(ABC):
+    """A policy that drives a ManiSkill env itself, e.g. ManiSkill's motion-planning solutions: it gets the
+    task's gymnasium env with the candidate already in it, may ``reset(seed=seed)`` it (the same episode:
+    the candidate is installed and settled inside the env's own reset) and steps it as it likes. The task
+    judges the trial from the steps it took (:class:`grt.tasks.maniskill.session.ManiSkillSession`)."""
+
+    def reset(self, seed: int) -> None:  # noqa: B027 - optional hook
+        """Start a new trial."""
+
+    @abstractmethod
+    def solve(self, env, seed: int):
+        """Run one episode of ``env`` (a gymnasium env over a ManiSkill ``BaseEnv``) from ``seed``."""
+
+
 #: the kinds of policy a task can drive, in words (:func:`policy_kind`; a task session names those it
 #: runs in ``TaskSession.policy_kinds``, and :func:`grt.tasks.preflight` refuses another kind).
 POLICY_KINDS = {
     "grasp_planner": "a grasp planner (one point cloud in, ranked grasps out: GraspPolicy.plan)",
     "grasp_step": "a step-by-step grasp policy (GraspStepPolicy: one observation in, one arm action out)",
     "closed_loop": "a closed-loop policy (BatchedPolicy: observation groups in, actions out, every control step)",
+    "env_driver": "a policy that drives the env itself (EnvDriverPolicy.solve(env, seed), e.g. a motion planner)",
 }
 
 
@@ -198,7 +267,8 @@ def policy_kind(cls: type) -> str | None:
     """The kind of a policy class (a key of :data:`POLICY_KINDS`), or ``None`` when it is none of them.
 
     A subclass of one of the interfaces is of its kind; a class that subclasses none is taken by what it
-    has, as the tasks call it: ``plan`` (a grasp planner) or ``act`` (a closed-loop policy).
+    has, as the tasks call it: ``solve`` (an env driver), ``plan`` (a grasp planner) or ``act`` (a closed-loop
+    policy).
     """
     if issubclass(cls, GraspStepPolicy):
         return "grasp_step"
@@ -206,6 +276,8 @@ def policy_kind(cls: type) -> str | None:
         return "grasp_planner"
     if issubclass(cls, BatchedPolicy):
         return "closed_loop"
+    if issubclass(cls, EnvDriverPolicy) or callable(getattr(cls, "solve", None)):
+        return "env_driver"
     if callable(getattr(cls, "plan", None)):
         return "grasp_planner"
     if callable(getattr(cls, "act", None)):

@@ -11,13 +11,14 @@ Failures, none of them silent:
 - nothing listens at the URL, the server refuses the token or speaks another protocol, or it serves
   another task or other observations: :class:`PolicyServerError` (one line naming both sides, exit
   code 2), before any simulation;
-- a reply that does not come within ``timeout`` s, is malformed (wrong shape, non-finite action) or is
-  the server's error: :class:`PolicyReplyError`, which the task records as a ``sim_error`` trial with
-  the reason;
-- the connection breaks in a trial: :class:`~grt.policies.base.PolicyInterrupted`; the worker re-runs
-  the trial, which reconnects (``retries`` attempts, waits doubling from ``retry_wait`` s) to a server
-  that must be the same policy; if it stays down: :class:`~grt.policies.base.PolicyUnavailable`, and the
-  evaluation stops (``resume=DIR`` finishes a red-team run later).
+- a reply that is malformed (wrong shape, non-finite action) or is the server's error:
+  :class:`PolicyReplyError`, which the task records as a ``sim_error`` trial with the reason;
+- the connection breaks in a trial, or a reply does not come within ``timeout`` s (a stalled server: no
+  trial's fault, so never a ``sim_error``; the connection is dropped, so a late reply answers nothing):
+  :class:`~grt.policies.base.PolicyInterrupted`; the worker re-runs the trial (up to three times), which
+  reconnects (``retries`` attempts, waits doubling from ``retry_wait`` s) to a server that must be the same
+  policy; if it stays down or silent: :class:`~grt.policies.base.PolicyUnavailable`, and the evaluation
+  stops with one line (``resume=DIR`` finishes a red-team run later, every trial scored).
 """
 
 from __future__ import annotations
@@ -107,15 +108,17 @@ class _Remote:
         """The server's reply to ``message``.
 
         Raises:
-            PolicyReplyError: no reply within ``timeout``, an undecodable reply, or the server's error.
-            PolicyInterrupted: the connection broke (the trial is re-run).
+            PolicyReplyError: an undecodable reply, or the server's error.
+            PolicyInterrupted: the connection broke, or no reply came within ``timeout`` (the trial is re-run).
             PolicyUnavailable: the server stays down.
         """
         client = self._client()
         try:
             reply = client.request(message)
-        except TimeoutError:
-            raise PolicyReplyError(f"no reply from {self.url} within {self.timeout:g} s (policy.timeout)") from None
+        except TimeoutError:  # the server stalled: no outcome of the trial's, which is re-run on a new connection
+            self.close()
+            raise PolicyInterrupted(f"no reply from {self.url} within {self.timeout:g} s (policy.timeout; a policy "
+                                    "that is this slow needs a larger one)") from None
         except ProtocolError as err:
             raise PolicyReplyError(f"malformed reply from {self.url}: {err}") from None
         except (ConnectionClosed, OSError) as err:
@@ -255,7 +258,8 @@ def connect(url: str, timeout: float = 30.0, token: str | None = None, retries: 
 
     Args:
         url: ``ws://HOST:PORT`` (what ``python -m grt.serve`` prints on its first line).
-        timeout: seconds a reply may take; a later one makes the trial a ``sim_error``.
+        timeout: seconds a reply may take (> 0); without one the trial is re-run, and the evaluation stops
+            when it stays silent (see the module docstring).
         token: the server's shared secret (``serve.token``), if it asks for one.
         retries: reconnection attempts after the connection broke, waits doubling from ``retry_wait`` s.
         open_timeout: seconds to connect and exchange hellos.
@@ -264,6 +268,10 @@ def connect(url: str, timeout: float = 30.0, token: str | None = None, retries: 
     Raises:
         PolicyServerError: no server there, refused, or a server of an unknown kind.
     """
+    for key, value in (("timeout", timeout), ("open_timeout", open_timeout)):
+        if not float(value) > 0:  # 0: every request "timed out" at once, every trial lost
+            raise PolicyServerError(f"policy.{key}={value}: the seconds to wait for the policy server must be > 0 "
+                                    f"(the default: policy.{key}={30.0 if key == 'timeout' else 10.0})")
     server = hello(url, token, open_timeout, max_message)
     kinds = {"batched": RemoteBatchedPolicy, "grasp": RemoteGraspPolicy}
     if server.get("kind") not in kinds:

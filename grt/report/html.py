@@ -20,7 +20,6 @@ no videos (why, from ``videos/videos.json``).
 from __future__ import annotations
 
 import base64
-import html
 import json
 import math
 from dataclasses import dataclass, field
@@ -31,19 +30,15 @@ import numpy as np
 
 from grt.fileio import write_text_atomic
 from grt.journal import restore
+from grt.metrics import iter_at_50_label
+from grt.report.modes import esc, modes_section
 from grt.report.tables import ReportError, aggregate, collect
+from grt.runfolder import resume_command
 from grt.scores import ScoreSpec
 
 REPORT = "report.html"
 VIDEOS = "videos"
 VIDEO_INDEX = "videos.json"
-# Mode colours of the stacked bars; a task's own modes take the next free colour in order.
-_PALETTE = ["#2e7d32", "#c62828", "#ef6c00", "#6a1b9a", "#1565c0", "#00838f", "#ad1457", "#5d4037", "#9e9d24"]
-_FIXED = {"success": "#2e7d32", "sim_error": "#757575"}
-
-
-def esc(value) -> str:
-    return html.escape(str(value), quote=True)
 
 
 def _asset(name: str) -> str:
@@ -120,7 +115,7 @@ def load_run(path: Path) -> RunFolder:
         total = _planned_total(config)
         run.problems.insert(0, f"partial run: no summary.json (the run stopped before its end); {len(records)} "
                                f"candidate(s) in the journal{f' of {total} planned' if total else ''}. "
-                               f"Finish it with python -m grt.run resume={path}")
+                               f"Finish it with {resume_command(path)}")
     return run
 
 
@@ -175,7 +170,7 @@ def headline(run: RunFolder, score: ScoreSpec) -> list[tuple[str, str, str, str,
             ("best", f(best), _interval(s.get("best_ci95"), f), unit, "lowest score the search found (rank-1 CrashShape)"),
             ("Final Drop", pct(s.get("final_drop")), _interval(drop_ci, pct), "% of S0",
              "1 - best / S0; interval: the best candidate's 95% interval with S0 fixed"),
-            ("Iter@50%", f"{s.get('iter_at_50', '-')}{'' if s.get('reached_50', True) else ' (not reached)'}",
+            ("Iter@50%", iter_at_50_label(s.get("iter_at_50"), s.get("reached_50", True)),
              "n/a", "iterations", "first iteration whose best-so-far drop reaches 50% (a point of the search)"),
             ("AUC", _num(s.get("auc")), "n/a", "drop x iterations (max T)", "area under the degradation curve (trapezoid rule)"),
             ("ΔComplexity", _num(s.get("delta_complexity")), "n/a", "entropy (nats)",
@@ -287,35 +282,6 @@ def curve_svg(curve: list, width: int = 360, height: int = 300) -> str:
     return "".join(out)
 
 
-def modes_svg(rows: list[tuple[str, dict[str, int]]], colours: dict[str, str], width: int = 520) -> str:
-    """Stacked horizontal bars: per row (nominal, a CrashShape...) the share of its trials in each mode."""
-    h, label = 22, 150
-    height = h * len(rows) + 8
-    out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' class='modes'>"]
-    for i, (name, counts) in enumerate(rows):
-        total = sum(counts.values()) or 1
-        yy, xx = 4 + i * h, label
-        out.append(f"<text x='{label - 6}' y='{yy + 14}' font-size='11' text-anchor='end'>{esc(name)}</text>")
-        for mode, n in counts.items():
-            w = (width - label - 8) * n / total
-            out.append(f"<rect x='{xx:.1f}' y='{yy}' width='{w:.1f}' height='{h - 6}' fill='{colours[mode]}'>"
-                       f"<title>{esc(mode)}: {n} of {total}</title></rect>")
-            if w > 24:
-                out.append(f"<text x='{xx + w / 2:.1f}' y='{yy + 12}' font-size='10' fill='#fff' "
-                           f"text-anchor='middle'>{n}</text>")
-            xx += w
-    out.append("</svg>")
-    return "".join(out)
-
-
-def mode_colours(modes) -> dict[str, str]:
-    out, free = dict(_FIXED), [c for c in _PALETTE if c not in _FIXED.values()]
-    for m in sorted(modes):
-        if m not in out:
-            out[m] = free[len(out) % len(free)] if free else "#999"
-    return out
-
-
 # --- Meshes -----------------------------------------------------------------------------------------
 
 def _b64(array: np.ndarray) -> str:
@@ -421,6 +387,9 @@ def _shapes_section(run: RunFolder, page: dict) -> str:
         fresh_txt = (f"; fresh episodes {score.fmt(c['score'], unit=True)}, Holm p = {c['p_holm']:.3g}"
                      if c else "")
         links = f"<a href='{esc(shape['file'])}'>{esc(Path(shape['file']).name)}</a> (printable STL, m)" if stl else ""
+        if shape.get("file_input_units") and (run.path / shape["file_input_units"]).is_file():
+            links += (f"; <a href='{esc(shape['file_input_units'])}'>{esc(Path(shape['file_input_units']).name)}</a> "
+                      f"(the input's units, {esc(shape.get('input_unit'))})")
         nominal_canvas = (f"<div class='card'><canvas class='grt-mesh' width='340' height='340' data-mesh='nominal' "
                           f"data-group='{key}'></canvas><div>nominal object "
                           "<a href='nominal.obj'>nominal.obj</a></div></div>") if nominal_key else ""
@@ -444,56 +413,14 @@ def _legend_svg(vmax: float | None) -> str:
             f"text-anchor='end'>{vmax:.1f} mm</text></svg>")
 
 
-def _modes_section(run: RunFolder) -> str:
-    """Per CrashShape: its trials' failure modes beside the nominal's, the seed of each trial."""
-    s = run.summary or {}
-    nominal = next((r for r in run.records if r["iteration"] == 0), None)
-    if nominal is None:
-        return "<p class='note'>The nominal object was not evaluated yet.</p>"
-    by_key = {(r["iteration"], r["candidate"]): r for r in run.records}
-    shapes = [(f"rank {c['rank']} (it{c['iteration']}_c{c['candidate']})", by_key.get((c["iteration"], c["candidate"])))
-              for c in s.get("crashshapes") or []]
-    if not shapes:  # a partial run: its lowest candidates so far
-        explored = sorted((r for r in run.records if r["iteration"] >= 1 and r["score"] == r["score"]),
-                          key=lambda r: (r["score"], r["iteration"], r["candidate"]))[:3]
-        shapes = [(f"it{r['iteration']}_c{r['candidate']} (lowest so far)", r) for r in explored]
-    shapes = [(n, r) for n, r in shapes if r is not None]
-    modes = {t.get("mode", "?") for r in [nominal] + [r for _, r in shapes] for t in r.get("trials", [])}
-    colours = mode_colours(modes)
-    rows = [("nominal", _counts(nominal))] + [(n, _counts(r)) for n, r in shapes]
-    out = ["<div class='legend'>" + "".join(f"<span><i class='sw' style='background:{colours[m]}'></i>{esc(m)}</span>"
-                                            for m in sorted(modes)) + "</div>", modes_svg(rows, colours)]
-    # seeds: the same episodes for every candidate of the search (common random numbers)
-    seeds = [t["seed"] for t in nominal.get("trials", [])]
-    head = "".join(f"<th>{esc(n)}</th>" for n, _ in shapes)
-    body = []
-    for i, seed in enumerate(seeds):
-        cells = [_mode_cell(nominal, i)] + [_mode_cell(r, i) for _, r in shapes]
-        body.append(f"<tr><td>{seed}</td>{''.join(cells)}</tr>")
-    out.append("<details><summary>every trial with its episode seed (replay one: python -m grt.replay RUN "
-               "candidate=it&lt;t&gt;_c&lt;i&gt; seed=&lt;seed&gt;)</summary>"
-               f"<table><tr><th>seed</th><th>nominal</th>{head}</tr>{''.join(body)}</table></details>")
-    conf = [r for r in run.confirm if r.get("trials")]
-    if conf:
-        out.append("<p class='note'>Confirmation on fresh episodes (confirm-*.jsonl): "
-                   + "; ".join(("nominal" if r["iteration"] == 0 else f"it{r['iteration']}_c{r['candidate']}") + ": "
-                               + ", ".join(f"{m} {n}" for m, n in sorted(_counts(r).items())) for r in conf) + "</p>")
-    return "".join(out)
+def mode_meanings(run: RunFolder) -> dict[str, str]:
+    """What each trial mode of the run's task means (one line each), from the task module's docstring
+    (:func:`grt.tasks.base.mode_meanings`): the same text a developer reads there."""
+    from grt.tasks.base import mode_meanings as meanings
 
-
-def _counts(rec: dict) -> dict[str, int]:
-    counts: dict[str, int] = {}
-    for t in rec.get("trials", []):
-        counts[t.get("mode", "?")] = counts.get(t.get("mode", "?"), 0) + 1
-    return counts or dict(rec.get("outcomes") or {})
-
-
-def _mode_cell(rec: dict, i: int) -> str:
-    trials = rec.get("trials", [])
-    if i >= len(trials):
-        return "<td>-</td>"
-    mode = trials[i].get("mode", "?")
-    return f"<td class='l{'' if mode == 'success' else ' mode-bad'}'>{esc(mode)}</td>"
+    task = _config(run).get("task") or {}
+    session = task.get("session") if isinstance(task, dict) else None
+    return meanings(session.get("_target_") if isinstance(session, dict) else None)
 
 
 def _videos_section(run: RunFolder) -> str:
@@ -507,6 +434,7 @@ def _videos_section(run: RunFolder) -> str:
     except ValueError:
         return "<p class='warn'>videos/videos.json is not readable: no videos shown.</p>"
     out = []
+    meanings = mode_meanings(run)
     if data.get("skipped"):
         out.append(f"<p class='warn'>No videos: {esc(data['skipped'])}</p>")
     for pair in data.get("pairs", []):
@@ -520,7 +448,8 @@ def _videos_section(run: RunFolder) -> str:
             src = f"data:{mime};base64,{base64.b64encode(path.read_bytes()).decode()}"
             cards.append(f"<div class='card'><video controls muted loop playsinline preload='auto' src='{src}'>"
                          f"</video><div>{esc(clip['label'])}: <b class='{'' if clip['mode'] == 'success' else 'mode-bad'}'>"
-                         f"{esc(clip['mode'])}</b> (journal: {esc(clip.get('journal_mode', '-'))})</div></div>")
+                         f"{esc(clip['mode'])}</b> (journal: {esc(clip.get('journal_mode', '-'))})</div>"
+                         f"<div class='note'>{esc(meanings.get(clip['mode'], ''))}</div></div>")
         out.append(f"<h3>{esc(pair['title'])}, episode seed {pair['seed']}</h3><div class='row'>{''.join(cards)}</div>")
     if data.get("camera"):
         out.append(f"<p class='note'>{esc(data['camera'])}</p>")
@@ -552,7 +481,8 @@ def render_run(path: Path) -> str:
                  + "<p class='note'>Left: every candidate's score per iteration (hover a dot for its name). "
                  "Right: the degradation curve.</p>", "search"),
         _section("CrashShapes", _shapes_section(run, page), "crashshapes"),
-        _section("Failure modes per CrashShape (same episode seeds as the nominal)", _modes_section(run), "modes"),
+        _section("Failure modes per CrashShape (same episode seeds as the nominal)",
+                 modes_section(run.summary, run.records, run.confirm, mode_meanings(run)), "modes"),
         _section("Videos: the nominal object and each CrashShape on the same episode", _videos_section(run), "videos"),
         _section("Mesh preparation", _kv_table(s["mesh_preparation"]) if s.get("mesh_preparation")
                  else "<p class='note'>not recorded (partial run or an older summary)</p>", "mesh"),

@@ -63,6 +63,26 @@ def collect(root: Path) -> tuple[list[dict], list[Path]]:
     return rows, failed
 
 
+def unfinished(root: Path) -> list[Path]:
+    """The red-team run folders under ``root`` (a sweep's jobs; ``root`` itself is not counted) that never
+    wrote ``summary.json`` and hold no ``error.txt``: killed, stopped or still running. A run folder is one
+    with the run's record (``run_config.yaml``) or Hydra's record of a ``grt.run`` job (a job stopped before
+    its record was saved)."""
+    found = {p.parent for p in root.rglob("run_config.yaml")}
+    found |= {p.parent.parent for p in root.rglob(".hydra/hydra.yaml") if _is_run_job(p)}
+    return sorted(p for p in found if p != root and not (p / "summary.json").exists()
+                  and not (p / "error.txt").exists() and ".submitit" not in p.parts)
+
+
+def _is_run_job(hydra_yaml: Path) -> bool:
+    """Whether Hydra's record names the job ``run`` (``grt.run``'s; its log is ``run.log``)."""
+    try:
+        text = hydra_yaml.read_text()
+    except OSError:
+        return False
+    return re.search(r"^    name: run$", text, re.MULTILINE) is not None  # hydra.job.name
+
+
 def _is_summary_name(name: str) -> bool:
     """``summary.json`` (a run folder) or ``summary_<name>.json`` (a copy kept under ``experiments/``)."""
     return name == "summary.json" or (name.startswith("summary_") and name.endswith(".json"))
@@ -118,8 +138,9 @@ def aggregate(rows: list[dict]) -> list[dict]:
     return out
 
 
-def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
-    """Per-run table, per-method table (the paper's columns) and the failed jobs."""
+def markdown(rows: list[dict], agg: list[dict], failed: list[Path], waiting: list[Path] = ()) -> str:
+    """Per-run table, per-method table (the paper's columns), the failed jobs and those that never finished
+    (``waiting``, :func:`unfinished`)."""
     confirmed = any(r.get("confirm") for r in rows)
     head, rule = ("| Confirmed drop (%) ", "---|") if confirmed else ("", "")
     lines = [f"| task | object | policy | method | σ | seed | score | S0 | best | Final Drop (%) ↑ {head}| ΔComplexity ↓ "
@@ -142,6 +163,9 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path]) -> str:
                      f"{cell}{_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | {_fmt(a['auc'])} |")
     if failed:
         lines += ["", f"{len(failed)} failed job(s) (see error.txt):"] + [f"- {p}" for p in failed]
+    if waiting:
+        lines += ["", f"{len(waiting)} unfinished job(s) (no summary.json: killed, stopped or still running; "
+                      "continue each with python -m grt.run resume=DIR):"] + [f"- {p}" for p in waiting]
     return "\n".join(lines)
 
 

@@ -23,7 +23,6 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from grt.config import plain
@@ -32,11 +31,14 @@ from grt.evaluators.collision import make_collision
 from grt.evaluators.pool import build_session
 from grt.evaluators.sim import SimEvaluator
 from grt.geometry.mesh import load_mesh
+from grt.geometry.prepare import MeshSettings
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.redteam import episode_seeds
 from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train, write_json
 from grt.rl.vec_env import Shape, TaskVecEnv
 from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
+from grt.targets import build
+from grt.tasks import task_object
 
 log = logging.getLogger("grt.train")
 
@@ -50,15 +52,17 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
             file that cannot be written (before any training).
     """
     check_export(plain(cfg.train))
-    mesh = load_mesh(cfg.object)
+    # built before the simulator starts: a class that cannot be built is one line, nothing written
+    expert = build(cfg.train.bc.expert, "train.bc.expert") if cfg.train.get("bc") else None
+    logger = build(cfg.logger, "logger")
+    mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir),
+                     settings=MeshSettings.from_config(cfg.get("mesh")) if cfg.get("mesh") else None)
     collision = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64)  # as the evaluator
     parts = collision.parts(mesh)
     task, train_cfg = plain(cfg.task), plain(cfg.train)
     env = TaskVecEnv(task, [Shape.of(mesh, parts, str(cfg.object))], num_envs=train_cfg["num_envs"],
                      workers=train_cfg["workers"], seed=train_cfg["seed"], max_steps=train_cfg["max_steps"])
     bc = train_cfg.get("bc")
-    expert = instantiate(cfg.train.bc.expert) if bc else None
-    logger = instantiate(cfg.logger)
     logger.start(out_dir, name=f"train-{train_cfg['name']}", config=plain(cfg))
     val = train_cfg.get("validation") or {}
     score, session = (None, None) if not val else _validator(task, mesh, parts, int(val["trials"]))

@@ -232,8 +232,13 @@ class _Loop:
         finally:
             bar.close()
         final_it = self.rows[-1]["iteration"] if self.rows else self.start_it
+        window = [e["success"] for eps in self.recent for e in eps]
+        # best_success: the best success rate over train.patience iterations (best.pt's); None when no window
+        # was full (fewer iterations than train.patience), never the -1 it starts from.
         return {"iterations": int(final_it) + 1, "steps": (int(final_it) + 1) * self.steps_per_it,
-                "best_success": self.best, "wall_s": time.perf_counter() - started, "stopped_early": stopped_early,
+                "best_success": self.best if self.best >= 0 else None,
+                "last_success": float(np.mean(window)) if window else None, "last_window": len(self.recent),
+                "wall_s": time.perf_counter() - started, "stopped_early": stopped_early,
                 "out_dir": str(self.out), "validation": self.val.history}
 
     def step(self, it: int, bar) -> bool:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import traceback
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +26,7 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from grt.evaluators.pool import build_session
+from grt.targets import build_error, worker_error
 from grt.tasks import session_class
 
 
@@ -102,7 +104,13 @@ class _EnvGroup:
 
 def _worker(conn, task, shapes, weights, env_ids, seed, max_steps, threads):
     torch.set_num_threads(threads)
-    group = _EnvGroup(task, shapes, weights, env_ids, seed, max_steps)
+    try:
+        group = _EnvGroup(task, shapes, weights, env_ids, seed, max_steps)
+    except Exception:  # noqa: BLE001 - the main process words it in one line (grt.targets.worker_error)
+        conn.send(("fatal", traceback.format_exc()))
+        conn.close()
+        return
+    conn.send(("ready", None))
     try:
         while True:
             cmd, payload = conn.recv()
@@ -143,8 +151,12 @@ class TaskVecEnv(VecEnv):
         self.workers = min(int(workers), self.num_envs)
         splits = np.array_split(np.arange(self.num_envs), max(1, self.workers))
         self._splits = [s.tolist() for s in splits if len(s)]
+        target = str(task["session"].get("_target_"))
         if self.workers == 0:
-            self._local = _EnvGroup(task, shapes, w, list(range(self.num_envs)), seed, max_steps)
+            try:
+                self._local = _EnvGroup(task, shapes, w, list(range(self.num_envs)), seed, max_steps)
+            except Exception as exc:  # noqa: BLE001 - a session that cannot be built: one line
+                raise build_error("task.session", target, "building it", exc) from None
             self._conns, self._procs = [], []
         else:
             self._local = None
@@ -157,6 +169,11 @@ class TaskVecEnv(VecEnv):
                 child.close()
                 self._conns.append(parent)
                 self._procs.append(proc)
+            for conn in self._conns:  # each worker built its sessions, or says why not
+                kind, trace = conn.recv()
+                if kind == "fatal":
+                    self.close()
+                    raise worker_error("task.session", target, trace, "a training worker")
         first = self._call("reset")
         sample = first[0]
         self.obs_spec = {k: tuple(np.asarray(v).shape) for k, v in sample.items()}

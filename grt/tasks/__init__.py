@@ -12,14 +12,16 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from hydra.utils import get_class, get_object, instantiate
+from hydra.utils import get_class, get_object
 from omegaconf import OmegaConf
 
+from grt import CONF_DIR
 from grt.objects import list_objects
 from grt.policies.base import POLICY_KINDS, policy_kind
+from grt.targets import build, locate
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TaskSession, TrialOutcome
 
-TASK_CONF = Path(__file__).resolve().parents[2] / "conf" / "task"
+TASK_CONF = Path(CONF_DIR) / "task"  # the shipped tasks, in a checkout or an installed wheel
 POLICY_CONF = TASK_CONF.parent / "policy"
 
 
@@ -113,10 +115,10 @@ def fitting_policies(task_name: str, kinds: tuple[str, ...], folder: Path = POLI
 def _policy_class(policy) -> tuple[type | None, object]:
     """``(class, instance)`` of a policy given as an instance or as a config with ``_target_`` (not built)."""
     if isinstance(policy, Mapping) and "_target_" in policy:
-        target = get_object(str(policy["_target_"]))
+        target = locate(str(policy["_target_"]), "policy")  # a class Python cannot find: one line
         if isinstance(target, type):
             return target, None
-        built = instantiate(policy)  # a factory (policy=remote's connect): its product has the class
+        built = build(policy, "policy")  # a factory (policy=remote's connect): its product has the class
         return type(built), built
     return (type(policy), policy) if policy is not None else (None, None)
 
@@ -158,12 +160,98 @@ def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:
     session = session_class(task)  # a variant YAML (grasp_2cam) names the same class
     session.check_object(mesh, **{k: v for k, v in task["session"].items() if k != "_target_"})
     if built is None and cls is not None:
-        built = instantiate(policy)
+        built = build(policy, "policy")  # a constructor that raises: one line, its traceback in a file
     check = getattr(built, "check", None)
+    probe = getattr(session, "probe_policies", False) and built is not None and policy_kind(type(built)) == "closed_loop"
+    if check is None and not probe:
+        return
+    kwargs = {k: v for k, v in task["session"].items() if k != "_target_"}
+    spec = session.observation_spec(**kwargs)
+    num_actions = session.action_size(**kwargs) if hasattr(session, "action_size") else session.num_actions
+    name = getattr(session, "task_name", "") or task["name"]
     if check is not None:
-        spec = session.observation_spec(**{k: v for k, v in task["session"].items() if k == "cloud_points"})
-        check(getattr(session, "task_name", "") or task["name"], spec, session.num_actions)
+        check(name, spec, num_actions)
+    else:
+        check_policy_io(built, name, spec, num_actions)
 
 
-__all__ = ["COMMON_MODES", "TASKS", "EpisodeSession", "PolicyKindError", "TaskSession", "TrialOutcome",
-           "check_policy_kind", "get_task", "preflight", "session_class"]
+class PolicySizeError(TaskInputError):
+    """A policy whose observation or action size does not fit the task's env."""
+
+
+def check_policy_io(policy, task_name: str, spec: dict, num_actions: int) -> None:
+    """Refuse a closed-loop policy (with no ``check`` of its own) whose sizes do not fit the task's: the
+    sizes it declares (``obs_spec``, ``num_actions`` attributes) or, when it declares none, what it does
+    with one zero observation of the task's sizes (its actions must be ``(1, num_actions)``).
+
+    Raises:
+        PolicySizeError: one line naming the policy's sizes and the task's.
+    """
+    what = type(policy).__name__
+    shapes = ", ".join(f"{k} {tuple(v)}" for k, v in spec.items())
+    gives = f"task={task_name} gives observations {shapes} and takes {num_actions} actions"
+    declared = getattr(policy, "obs_spec", None)
+    if isinstance(declared, Mapping):
+        for group, want in declared.items():
+            have = tuple(spec[group]) if group in spec else None
+            if have != tuple(want):
+                raise PolicySizeError(f"{what} reads observation {group!r} of shape {tuple(want)}, but {gives}")
+    wants = getattr(policy, "num_actions", None)
+    if isinstance(wants, int) and wants != num_actions:
+        raise PolicySizeError(f"{what} writes {wants} actions, but {gives}")
+    if isinstance(declared, Mapping) and isinstance(wants, int):
+        return
+    import numpy as np
+
+    zeros = {k: np.zeros((1, *v), np.float32) for k, v in spec.items()}
+    try:
+        action = np.asarray(policy.act(zeros))
+    except Exception as err:  # noqa: BLE001 - whatever a wrong size raises inside a user's code
+        raise PolicySizeError(f"{what} fails on an observation of the task's sizes ({type(err).__name__}: "
+                              f"{str(err).splitlines()[0] if str(err) else ''}): {gives}") from None
+    if action.shape != (1, num_actions):
+        raise PolicySizeError(f"{what} wrote actions of shape {action.shape} for one observation, but {gives} "
+                              f"(actions of shape (1, {num_actions}))")
+
+
+#: ``object: actor`` (a task YAML's default for ManiSkill tasks): the swapped actor's own geometry.
+ACTOR_OBJECT = "actor"
+
+
+def task_object(task, spec, cache_dir: str | Path) -> str:
+    """The object spec to load (:func:`grt.geometry.mesh.load_mesh`): ``spec`` itself, or for ``actor`` the
+    task's stock actor geometry (its session's ``nominal_object``, GRT's frame), written once as an OBJ
+    under ``cache_dir/maniskill`` (named by the task and a hash of its session config) and its path.
+
+    Raises:
+        TaskInputError: ``object=actor`` for a task that has no actor of its own.
+    """
+    import hashlib
+    import json
+
+    if str(spec) != ACTOR_OBJECT:
+        return str(spec)
+    if not OmegaConf.is_config(task) and not isinstance(task, Mapping) or "session" not in task:
+        raise TaskInputError("object=actor is the swapped actor of a ManiSkill task, and this command has no task "
+                             "config; give object=NAME (python -m grt.objects) or a mesh file (meters, GRT's frame)")
+    task = OmegaConf.to_container(task, resolve=True) if not isinstance(task, dict) else task
+    cls = session_class(task)
+    make = getattr(cls, "nominal_object", None)
+    if make is None:
+        raise TaskInputError(f"object=actor: task={task.get('name', '?')} has no actor of its own to take the "
+                             "object from; give object=NAME (python -m grt.objects) or a mesh file")
+    kwargs = {k: v for k, v in task["session"].items() if k not in ("_target_", "task_name")}
+    digest = hashlib.sha256(json.dumps(kwargs, sort_keys=True, default=str).encode()).hexdigest()[:10]
+    path = Path(cache_dir).expanduser() / "maniskill" / f"{task.get('name', 'task')}-{digest}.obj"
+    if not path.is_file():
+        from grt.fileio import write_bytes_atomic
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        mesh = make(**{k: v for k, v in task["session"].items() if k != "_target_"})
+        write_bytes_atomic(path, mesh.export(file_type="obj").encode())
+    return str(path)
+
+
+__all__ = ["ACTOR_OBJECT", "COMMON_MODES", "TASKS", "EpisodeSession", "PolicyKindError", "PolicySizeError",
+           "TaskSession", "TrialOutcome", "check_policy_io", "check_policy_kind", "get_task", "preflight",
+           "session_class", "task_object"]

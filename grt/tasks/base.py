@@ -13,10 +13,16 @@ has the :data:`COMMON_MODES`:
 
 - ``success``: the task's success condition holds at the end of the trial.
 - ``sim_error``: the simulation itself failed (NaN state, object flying away, a physics exception).
+
+A task module's docstring explains its own modes as such a list; :func:`mode_meanings` reads them there, so
+``report.html`` explains each mode it shows from the one text a developer reads.
 """
 
 from __future__ import annotations
 
+import ast
+import importlib.util
+import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,10 +31,53 @@ import numpy as np
 import trimesh
 
 from grt.errors import UserError
+from grt.policies.base import check_actions
 
 SUCCESS, SIM_ERROR = "success", "sim_error"
 #: The trial modes of every task: its success condition held, or the simulation itself failed.
 COMMON_MODES = (SUCCESS, SIM_ERROR)
+#: The worker pool's default ``trial_timeout`` (s) for a task whose session gives no bound of its own
+#: (:meth:`TaskSession.trial_seconds` is ``None``: a user's task, unless it says).
+FALLBACK_TRIAL_TIMEOUT = 600.0
+#: A task's default ``trial_timeout`` is this many times the longest a trial of it takes (its
+#: :meth:`TaskSession.trial_seconds`, itself from worst cases measured on a loaded machine).
+TRIAL_TIMEOUT_MARGIN = 3.0
+
+
+_MODE_ITEM = re.compile(r"^- ``(\w+)``: (.*)$")
+
+
+def _docstring_items(module: str) -> dict[str, str]:
+    """The ``- ``mode``: text`` items of a module's docstring (read from its source, not imported: the task
+    modules import the simulator), each with its continuation lines, without the trailing ``;``/``.``."""
+    try:
+        spec = importlib.util.find_spec(module)
+        source = spec.loader.get_source(module) if spec is not None and spec.loader is not None else None
+        doc = ast.get_docstring(ast.parse(source)) if source else None
+    except (ImportError, ValueError, SyntaxError, AttributeError):
+        return {}
+    items: dict[str, str] = {}
+    current = None
+    for line in (doc or "").splitlines():
+        match = _MODE_ITEM.match(line)
+        if match:
+            current = match.group(1)
+            items[current] = match.group(2)
+        elif current and line.startswith("  ") and line.strip():
+            items[current] += " " + line.strip()
+        else:
+            current = None
+    return {k: v.replace("``", "").strip().rstrip(";.") for k, v in items.items()}
+
+
+def mode_meanings(session_target: str | None) -> dict[str, str]:
+    """What each trial mode of a task means, one line each: ``{mode: meaning}`` from the docstrings of the
+    session's module (``session_target``: ``task.session._target_``, e.g. ``grt.tasks.grasp.GraspSession``) and
+    of this module (the :data:`COMMON_MODES`); a mode the docstrings do not list is absent."""
+    meanings = _docstring_items(__name__)
+    if session_target and "." in str(session_target):
+        meanings.update(_docstring_items(str(session_target).rsplit(".", 1)[0]))
+    return meanings
 
 
 class TaskInputError(UserError):
@@ -87,6 +136,15 @@ class TaskSession(ABC):
         """The observation groups a session built with these arguments produces (no simulator needed)."""
         return dict(cls.obs_spec)
 
+    @classmethod
+    def trial_seconds(cls, **session_kwargs) -> float | None:
+        """The longest one trial of a session built with ``session_kwargs`` takes, in seconds, with an
+        in-process policy: its episode's length times worst-case step times measured on a loaded machine
+        (``scripts/step_times.py``, docs/benchmarks.md "Trial timeouts"), or ``None`` when the task does not say.
+        The worker pool's default ``trial_timeout`` is :data:`TRIAL_TIMEOUT_MARGIN` times it
+        (:func:`grt.evaluators.sim.default_trial_timeout`)."""
+        return None
+
     @abstractmethod
     def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
         """Rebuild the scene around a new object.
@@ -131,12 +189,24 @@ class EpisodeSession(TaskSession):
     policy_kinds = ("closed_loop",)
     #: the task's name (``conf/task/<name>.yaml``), checked against a learned policy's training task.
     task_name: str = ""
+    #: worst cases (s) measured on a loaded machine: one control step (the policy's act, the simulation and the
+    #: observation; the slowest trial's mean), a trial's reset (the scene rebuilt); ``None``: not measured
+    STEP_S: float | None = None
+    RESET_S: float = 0.0
     #: the gymnasium env a subclass builds (``gym.make``), closed and rendered by the methods below.
     env = None
 
     def __init__(self, policy=None, max_steps: int = 256, rebuild_each_trial: bool = True):
         self.policy, self.max_steps, self.rebuild_each_trial = policy, int(max_steps), bool(rebuild_each_trial)
         self.steps = 0
+
+    @classmethod
+    def trial_seconds(cls, **session_kwargs) -> float | None:
+        """The reset and ``max_steps`` control steps at the measured worst case (:attr:`STEP_S`,
+        :attr:`RESET_S`); ``None`` for a task that measured none (see :meth:`TaskSession.trial_seconds`)."""
+        if cls.STEP_S is None:
+            return None
+        return cls.RESET_S + int(session_kwargs.get("max_steps") or init_default(cls, "max_steps")) * cls.STEP_S
 
     def set_policy(self, policy) -> None:
         """Run the next trials with ``policy`` (checked against this task's observations and actions)."""
@@ -211,8 +281,9 @@ class EpisodeSession(TaskSession):
             obs = self.reset(seed, rebuild=self.rebuild_each_trial)
             self.policy.reset(seed)
             done, success = False, False
-            while not done:
-                action = self.policy.act({k: v[None] for k, v in obs.items()})[0]
+            while not done:  # a NaN or misshapen action: a sim_error naming the policy, from the first step on
+                action = check_actions(self.policy.act({k: v[None] for k, v in obs.items()}), (1, self.num_actions),
+                                       self.policy)[0]
                 obs, _, success, truncated, info = self.step(action)
                 self._check(info)
                 done = success or truncated or self.hopeless(info)
@@ -230,3 +301,10 @@ class EpisodeSession(TaskSession):
         for k, v in info.items():
             if isinstance(v, float) and not np.isfinite(v):
                 raise FloatingPointError(f"non-finite {k} in the simulation state")
+
+
+def init_default(cls: type, name: str):
+    """The default of argument ``name`` of ``cls.__init__`` (what a session gets when its config omits it)."""
+    import inspect
+
+    return inspect.signature(cls.__init__).parameters[name].default

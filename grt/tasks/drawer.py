@@ -114,6 +114,9 @@ class DrawerSession(BatchedEpisodes, EpisodeSession):
     num_actions = 9
     task_name = "drawer"
     failure_modes = (*COMMON_MODES, "missed_handle", "slipped", "partial_open", "timeout")
+    # worst cases measured at a load average of 13 on 2 cores (scripts/step_times.py, drawer_state): a control
+    # step 15.7 ms on average (4.4 ms at load 11), a reset at most 0.47 s; rounded up
+    STEP_S, RESET_S = 0.02, 0.5
     score_name = "opening"
     obs_spec = {"state": (STATE_DIM,)}
 

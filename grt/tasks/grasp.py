@@ -16,7 +16,21 @@ An episode (the paper's protocol, appendix "Grasping Task"):
    ``dropped_lift``), shake 10 cm sideways and back (``dropped_shake``), and judge: object lifted
    and pinched by both fingers.
 
-Any NaN, runaway object or physics exception ends the trial as ``sim_error``.
+A trial is named (report.html shows these lines beside the modes, :func:`grt.tasks.base.mode_meanings`):
+
+- ``success``: after the shake the object is still lifted and pinched between both fingers;
+- ``no_grasp_found``: the policy planned no grasp on the object's point cloud;
+- ``unreachable``: no planned grasp could be reached: none of the first ``max_ik_candidates`` grasps (each
+  also turned 180 deg) had IK solutions for its via, pre-grasp, grasp, lift and shake poses, so the robot
+  never moved towards the object;
+- ``missed``: the fingers closed beside the object or lost it at once: it was not lifted;
+- ``dropped_lift``: the object was pinched when the fingers closed but slipped out during the lift;
+- ``dropped_shake``: the object was lifted but fell out of the fingers during the shake;
+- ``sim_error``: a physics failure (NaN state, runaway object, a physics exception).
+
+Any NaN, runaway object or physics exception ends the trial as ``sim_error``, and so does a policy's output
+the task cannot use (a non-finite grasp pose or action, an action of the wrong shape), its reason naming the
+policy (:class:`grt.policies.base.PolicyOutputError`).
 """
 
 from __future__ import annotations
@@ -28,8 +42,8 @@ import gymnasium as gym
 import numpy as np
 import trimesh
 
-from grt.policies.base import GraspObservation, GraspStepPolicy
-from grt.tasks.base import COMMON_MODES, TaskSession, TrialOutcome
+from grt.policies.base import GraspObservation, GraspStepPolicy, check_actions, check_grasps
+from grt.tasks.base import COMMON_MODES, TaskSession, TrialOutcome, init_default
 from grt.tasks.grasp_env import GraspEnv  # registers GRT-Grasp-v1 (env docstring: Description, ...)
 from grt.tasks.motion import PandaIK, offset_along_approach, rotate_about_z, translated
 
@@ -64,6 +78,23 @@ class GraspSession(TaskSession):
     task_name = "grasp"
     failure_modes = (*COMMON_MODES, "no_grasp_found", "unreachable", "missed", "dropped_lift", "dropped_shake")
     policy_kinds = ("grasp_planner", "grasp_step")
+    # worst cases (s) measured at a load average of 13 on 2 cores (scripts/step_times.py), rounded up: a control
+    # step 37 ms on average; the scene rebuilt 0.51 s at most; the capture 30 s for 6 cameras of 360 x 240 in a
+    # worker's first trial (it builds the renderer's shaders; 0.3-1 s after), per camera; a planning of the
+    # slowest shipped planner, Contact-GraspNet, 14.4 s at most (antipodal: 1.2 s), with room for a retry
+    STEP_S, RESET_S, CAPTURE_S, PLAN_S = 0.04, 0.5, 5.0, 30.0
+
+    @classmethod
+    def trial_seconds(cls, **session_kwargs) -> float:
+        """Reset, capture and plan, then every phase's control steps and a step policy's step budget at the
+        measured worst cases (see :meth:`grt.tasks.base.TaskSession.trial_seconds`)."""
+        steps = sum(int(n) for n in session_kwargs.get("steps") or init_default(cls, "steps"))
+        steps += int(session_kwargs.get("max_policy_steps") or init_default(cls, "max_policy_steps"))
+        cameras = int(session_kwargs.get("num_cameras") or init_default(cls, "num_cameras"))
+        pixels = int(session_kwargs.get("camera_width") or init_default(cls, "camera_width")) * \
+            int(session_kwargs.get("camera_height") or init_default(cls, "camera_height"))
+        capture = cls.CAPTURE_S * cameras * max(1.0, pixels / (360 * 240))
+        return cls.RESET_S + capture + cls.PLAN_S + steps * cls.STEP_S
 
     def __init__(self, policy, env_id: str = "GRT-Grasp-v1", num_cameras: int = 6, camera_width: int = 360,
                  camera_height: int = 240, xy_range: float = 0.02, yaw_range: float = 0.79,
@@ -147,6 +178,7 @@ class GraspSession(TaskSession):
             t = time.perf_counter()
             grasps = self.policy.plan(obs, seed)
             info["plan_s"] = time.perf_counter() - t
+        grasps = check_grasps(grasps, self.policy)  # a NaN pose: a sim_error naming the policy, never `missed`
         info["num_grasps"] = len(grasps)
         if not grasps:
             return "no_grasp_found"
@@ -263,7 +295,7 @@ class GraspSession(TaskSession):
             action = self.policy.act(obs)
             if action is None:
                 break
-            action = np.asarray(action, np.float64).reshape(8)
+            action = check_actions(action, (8,), self.policy)
             self._target, self._gripper = np.concatenate([action[:7], self._target[7:]]), float(action[7])
             self._move(self._target, 1)
         self._check_health()

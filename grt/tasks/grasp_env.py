@@ -41,6 +41,33 @@ from grt.tasks.scene import build_object_actor, capture_segmented_cloud, hemisph
 # the cameras' view (ManiSkill's "rest" keyframe puts the TCP at z = 0.17 m, inside a standing bottle).
 ROBOT_REST_QPOS = np.array([0.0, -0.2847, 0.0, -2.2441, 0.0, 1.9594, np.pi / 4, 0.04, 0.04])
 OBJECT_CENTER = (0.0, 0.0, 0.05)  # where the cameras look (m, world)
+# The render camera (report videos, grt.evaluate render=true) frames the object and the room its grasp needs
+# (lift and shake 0.10 m each, the shake along +y; the closed hand above it), seen from the front right and
+# above: a fixed camera on the whole table showed a mug as a few percent of the frame (issue 40).
+VIEW_FROM = np.array([0.45, 0.55, 0.35])  # direction from the object to the camera
+RENDER_FOV = 0.9  # rad
+LIFT_SHAKE_ROOM = (0.10, 0.10, 0.04)  # m: lift, shake, the hand above the object
+PLACEMENT_MARGIN = 0.025  # m: the placement noise (xy_range 0.02) and a little air
+
+
+def framing_camera(mesh: trimesh.Trimesh, fov: float = RENDER_FOV) -> tuple[np.ndarray, np.ndarray]:
+    """``(eye, target)`` (m, world) of a camera with field of view ``fov`` (rad, square image) looking along
+    ``-VIEW_FROM`` at ``mesh`` (resting on the table, as placed): as close as it can be with the object and
+    the room of its lift and shake (:data:`LIFT_SHAKE_ROOM`) all in view."""
+    lo, hi = np.asarray(mesh.bounds, np.float64)
+    lift, shake, hand = LIFT_SHAKE_ROOM
+    room_lo = np.array([lo[0] - PLACEMENT_MARGIN, lo[1] - PLACEMENT_MARGIN, 0.0])
+    room_hi = np.array([hi[0] + PLACEMENT_MARGIN, hi[1] + shake + PLACEMENT_MARGIN, hi[2] - lo[2] + lift + hand])
+    target = (room_lo + room_hi) / 2
+    back = VIEW_FROM / np.linalg.norm(VIEW_FROM)  # from the target to the eye
+    right = np.cross([0.0, 0.0, 1.0], back)
+    right /= np.linalg.norm(right)
+    up = np.cross(back, right)
+    corners = np.array([[x, y, z] for x in (room_lo[0], room_hi[0]) for y in (room_lo[1], room_hi[1])
+                        for z in (room_lo[2], room_hi[2])]) - target
+    reach = np.tan(fov / 2)  # half the view's width at unit depth; a corner at depth d needs |offset| <= reach d
+    distance = float(np.max(corners @ back + np.maximum(np.abs(corners @ right), np.abs(corners @ up)) / reach))
+    return target + distance * back, target
 
 
 def default_object() -> tuple[trimesh.Trimesh, list[np.ndarray]]:
@@ -89,8 +116,15 @@ class GraspEnv(TaskEnv):
 
     @property
     def _default_human_render_camera_configs(self) -> CameraConfig:
-        pose = sapien_utils.look_at([0.45, 0.55, 0.45], [0.0, 0.0, 0.1])
-        return CameraConfig("render_camera", pose, 512, 512, 1.0, 0.01, 10)
+        return CameraConfig("render_camera", self.video_camera(self.object_mesh)["pose"], 512, 512, RENDER_FOV,
+                            0.01, 10)
+
+    def video_camera(self, mesh: trimesh.Trimesh) -> dict:
+        """The render camera's settings that frame ``mesh`` and its grasp (:func:`framing_camera`): ``pose``
+        and ``fov``, for ``human_render_camera_configs`` (the report films a CrashShape and the nominal object
+        with the nominal's, so both clips show the same view)."""
+        eye, target = framing_camera(mesh)
+        return {"pose": sapien_utils.look_at(eye.tolist(), target.tolist()), "fov": RENDER_FOV}
 
     def set_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
         """Store the next object; it is built at the next ``reset(options={"reconfigure": True})``.

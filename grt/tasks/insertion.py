@@ -41,14 +41,20 @@ def plug_geometry(spec: str, head_length: float | None, grip_height: float | Non
     Raises:
         PlugFitError: a user's plug file without ``head_length`` / ``grip_height``.
     """
-    from grt.objects import BUILDERS, object_info
+    from grt.objects import BUILDERS, INSERTION, object_info
 
     if head_length is not None and grip_height is not None:
         return float(head_length), float(grip_height)
     known = object_info(spec).get("insertion") if spec in BUILDERS else None
+    given = ("give its connector length and grip height, e.g. task.session.head_length=0.012 "
+             "task.session.grip_height=0.03 (meters, tip at z = 0)")
+    if known is None and spec in BUILDERS:  # e.g. 'plug': lies on its side, a grasp object
+        info = object_info(spec)
+        raise PlugFitError(f"{spec!r} is a built-in object of the {info['task']} task ({info['description']}), not an "
+                           f"insertion plug: the insertion task's built-in plugs are {', '.join(sorted(INSERTION))} "
+                           f"(object={sorted(INSERTION)[-1]}); for a plug of your own, {given}")
     if known is None:
-        raise PlugFitError(f"{spec!r} is no built-in plug: give its connector length and grip height, e.g. "
-                           "task.session.head_length=0.012 task.session.grip_height=0.03 (meters, tip at z = 0)")
+        raise PlugFitError(f"{spec!r} is no built-in plug: {given}")
     return (float(head_length if head_length is not None else known["head_length"]),
             float(grip_height if grip_height is not None else known["grip_height"]))
 
@@ -98,6 +104,10 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
     num_actions = 6
     task_name = "insertion"
     failure_modes = (*COMMON_MODES, "jammed", "misaligned", "dropped", "timeout")
+    # worst cases measured at a load average of 11 on 2 cores (scripts/step_times.py): a control step of the
+    # slowest shipped policy, insertion_pcd, 127 ms on average (its act 95 ms; insertion_state's step: 24 ms), a
+    # reset at most 0.48 s; rounded up
+    STEP_S, RESET_S = 0.15, 0.5
 
     def __init__(self, policy=None, socket_object: str = "usb_plug", head_length: float | None = None,
                  grip_height: float | None = None, clearance: float = 0.0004, chamfer: float = 0.0015,

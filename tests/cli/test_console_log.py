@@ -55,6 +55,7 @@ def test_run_in_a_log(grasp_smoke_run):
     assert [line for line in proc.stderr.splitlines() if line.startswith("red-team: 7/7 (100%)")]
     assert "ΔComplexity" in proc.stdout and "…" not in proc.stdout  # the table's headers whole
     assert f"  curve: {out / 'curve.png'}" in lines
+    assert proc.stdout.count("Smoothness-Score cap") == 1  # said once, before the search (issue 40)
 
 
 @pytest.mark.parametrize("app", ["run", "evaluate"])

@@ -1,4 +1,5 @@
-"""Every documented command answers ``--help``, and every console script names an app with ``cli()``."""
+"""Every documented command answers ``--help``, starting with one line that says what it does, and every console
+script names an app with ``cli()``."""
 
 from __future__ import annotations
 
@@ -9,11 +10,13 @@ from pathlib import Path
 
 import pytest
 
+from grt.cli._common import about_line
+
 tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMANDS = ("run", "evaluate", "select", "deform", "bench", "objects", "report", "blueteam", "train", "serve",
-            "replay")
+            "replay", "calibrate")
 
 
 def _cases(make) -> list:
@@ -31,6 +34,11 @@ def test_python_m_help(name):
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert proc.stdout.strip(), proc.stderr[-2000:]
     assert "Traceback" not in proc.stdout + proc.stderr
+    assert proc.stdout.splitlines()[0] == about_line(name)  # what the command does, first
+    if name == "serve":  # the groups it composes, not Hydra's stock page of every group
+        groups = [line.split(":")[0] for line in proc.stdout.split("== Configuration groups ==")[1].split("== Config")[0]
+                  .splitlines() if ": " in line and "(now: " in line]
+        assert groups == ["policy", "task"], proc.stdout
 
 
 def test_every_command_has_a_console_script():

@@ -77,6 +77,7 @@ def test_a_replayed_trial_matches_the_journal_and_is_filmed(grasp_smoke_run, tmp
     assert last == {"candidate": f"it{rec['iteration']}_c{rec['candidate']}", "seed": trial["seed"],
                     "outcome": trial["mode"], "journal_outcome": trial["mode"], "match": True}
     recorded = json.loads((run / "replays.jsonl").read_text().splitlines()[-1])
+    assert f"recorded in {run / 'replays.jsonl'}" in proc.stdout  # the file it writes is named (issue 40)
     import imageio.v2 as imageio
 
     reader = imageio.get_reader(str(video))

@@ -103,7 +103,21 @@ def test_the_shipped_insertion_policy_served_scores_as_in_process(tmp_path):
     with Served("policy=insertion_state", "serve.port=0") as server:
         remote, local = evaluate_served_and_in_process(tmp_path, server.url, "insertion_state", "task=insertion",
                                                        "budget.trials=3")
+        server.proc.send_signal(signal.SIGTERM)  # a scheduler's stop: exit code 143 as every app (0 before)
+        assert server.proc.wait(timeout=60) == 143
     assert remote == local
+
+
+def test_a_port_out_of_range_is_one_line_before_the_policy_loads():
+    """``serve.port=-5`` ended in an OverflowError traceback."""
+    from grt.cli.serve import make_server
+    from grt.policies.base import PolicyServerError
+    from tests.runner.conftest import compose_run
+
+    for port in (-5, 70000):
+        cfg = compose_run([f"serve.port={port}", "policy.checkpoint=/nonexistent.pt"], config_name="serve")
+        with pytest.raises(PolicyServerError, match=rf"^serve.port={port}: a port is a whole number from 1 to 65535"):
+            make_server(cfg)  # before the (here missing) checkpoint is read
 
 
 @pytest.mark.slow

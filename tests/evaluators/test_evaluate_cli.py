@@ -37,7 +37,7 @@ def test_clear_errors_for_bad_objects(obj, message, tmp_path):
     if obj.endswith(".obj"):
         (tmp_path / obj).write_text("this is not a mesh\n")
         obj = str(tmp_path / obj)
-    proc = subprocess.run([sys.executable, "-m", "grt.evaluate", f"object={obj}", f"hydra.run.dir={tmp_path}"],
+    proc = subprocess.run([sys.executable, "-m", "grt.evaluate", f"object={obj}", f"hydra.run.dir={tmp_path / 'out'}"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert message in proc.stderr

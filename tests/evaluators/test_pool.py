@@ -14,6 +14,7 @@ from omegaconf import OmegaConf
 
 from grt.evaluators.pool import WORKER_MB, WorkerPool, worker_limits
 from grt.evaluators.sim import SimEvaluator
+from grt.targets import ClassError
 
 HERE = Path(__file__).parent
 ROOT = HERE.parents[1]
@@ -96,9 +97,14 @@ def test_a_schedulers_time_limit_warning_does_not_kill_the_workers(toy_configs, 
 
 
 def test_a_session_that_cannot_be_built_is_a_clear_error(toy_configs, u_mesh, cache_dir):
+    """One line (a user error, exit code 2 in the apps): the class, the worker's error and where its traceback is."""
     task, policy = toy_configs(fail_build=True)
-    with pytest.raises(RuntimeError, match="toy session refuses to build"):
+    with pytest.raises(ClassError, match=r"task.session \(_toy_session.ToySession\) could not be built in an "
+                       "evaluator worker: RuntimeError: toy session refuses to build") as info:
         _evaluate(task, policy, [u_mesh], 1, cache_dir)
+    (line,) = str(info.value).splitlines()
+    trace = Path(line.rsplit("the whole traceback: ", 1)[1].rstrip(")"))
+    assert "Traceback (most recent call last)" in trace.read_text() and "def __init__" not in line
 
 
 def test_render_writes_one_picture_per_trial(toy_configs, u_mesh, cache_dir, tmp_path):

@@ -71,7 +71,7 @@ def test_evaluate_and_select_refuse_it_before_any_simulation(mm_mesh, tmp_path):
 
 @pytest.mark.parametrize("module", ["grt.run", "grt.select"])
 def test_the_clis_say_it_in_one_line_with_exit_code_2(module, mm_mesh, tmp_path):
-    args = ["task.session._target_=grt.tasks.base.TaskSession"] if module == "grt.run" else []
+    args = ["task.session._target_=tests.runner._toy_run.ToyTaskSession"] if module == "grt.run" else []
     proc = subprocess.run([sys.executable, "-m", module, f"object={mm_mesh}", *args, f"hydra.run.dir={tmp_path}"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300,
                           env={**os.environ, "WANDB_MODE": "disabled"})

@@ -159,3 +159,26 @@ def test_convex_decomposition_hulls_are_joined_and_judged_by_fidelity():
     prep = _prep(mesh)
     assert mesh.is_watertight and mesh.nondegenerate_faces(height=1e-12).all()
     assert any("joined" in r for r in prep["repairs"]) and 10 < prep["fidelity"]["hausdorff_mm"] < 25
+
+
+def test_a_large_input_says_each_step_as_it_starts(tmp_path, monkeypatch, caplog):
+    """A 2M-face scan took 5.5 minutes in silence (issue 40): a large input's clean-up, decimation stages,
+    remeshing and fidelity measure are logged as they start. Large is LARGE_FACES (100k faces); lowered here so a
+    can makes the case in a second."""
+    import logging
+
+    from grt.geometry import prepare
+
+    monkeypatch.setattr(prepare, "LARGE_FACES", 500)
+    path = _file(tmp_path, get_object("can"), "scan.stl")  # an STL: every triangle apart, cleaned up first
+    with caplog.at_level(logging.INFO, logger="grt.mesh"):
+        load_mesh(path, settings=MeshSettings(remesh="on", edge_length=0.03))
+    said = [r.getMessage() for r in caplog.records if r.name == "grt.mesh"]
+    assert said and all(m.startswith("preparing a 2640-face mesh: ") for m in said), said
+    steps = [next((i for i, m in enumerate(said) if word in m), None)
+             for word in ("each step is said", "cleaning up", "remeshing isotropically", "measuring the fidelity")]
+    assert None not in steps and steps == sorted(steps), said
+    caplog.clear()
+    monkeypatch.setattr(prepare, "LARGE_FACES", 100_000)
+    load_mesh(path, settings=MeshSettings(remesh="on", edge_length=0.03))
+    assert not [r for r in caplog.records if r.name == "grt.mesh"]  # a small input stays quiet

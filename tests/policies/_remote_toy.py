@@ -1,5 +1,5 @@
 """A cheap closed-loop task and policy for the remote-policy tests (imported by spawned workers and by the
-server script ``_serve_toy.py``).
+server script ``_serve_toy.py``), and two policies whose output the task cannot use.
 
 :class:`PointMassSession` is a real :class:`grt.tasks.base.EpisodeSession` (its ``run_trial`` records
 failures as the simulator's tasks do): a point starts and aims at seeded positions, each action moves it
@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from grt.evaluators.base import CandidateResult, Evaluator
 from grt.policies.base import BatchedPolicy
 from grt.tasks.base import COMMON_MODES, EpisodeSession
 
@@ -28,6 +29,40 @@ class GreedyPolicy(BatchedPolicy):
             time.sleep(self.delay)
         state = np.asarray(obs["state"], np.float64)
         return np.clip((state[:, 2:] - state[:, :2]) / 0.1, -1.0, 1.0).astype(np.float32)
+
+
+class NaNPolicy(BatchedPolicy):
+    """A policy whose output went wrong: NaN actions (a diverged network)."""
+
+    def act(self, obs):
+        return np.full((len(obs["state"]), 2), np.nan, np.float32)
+
+
+class WrongShapePolicy(BatchedPolicy):
+    """A policy made for another task: three actions where the point mass takes two."""
+
+    def act(self, obs):
+        return np.zeros((len(obs["state"]), 3), np.float32)
+
+
+class InProcessEvaluator(Evaluator):
+    """The task session of ``task`` with ``policy``, its trials run in this process (what a worker does), for
+    the tests of what the apps make of the outcomes (``evaluator._target_=_remote_toy.InProcessEvaluator``)."""
+
+    def __init__(self, task: dict, policy: dict, nominal=None, **_):
+        from grt.evaluators.pool import build_session
+
+        self.session, self.collision_s = build_session(task, policy), 0.0
+
+    def evaluate(self, meshes, seeds):
+        out = []
+        for mesh in meshes:
+            self.session.load_object(mesh, [])
+            out.append(CandidateResult.from_trials([self.session.run_trial(s) for s in seeds], wall_s=0.0))
+        return out
+
+    def collision_parts(self, mesh):
+        return [np.asarray(mesh.convex_hull.vertices)]
 
 
 class PointMassSession(EpisodeSession):

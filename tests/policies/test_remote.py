@@ -144,25 +144,41 @@ def test_timeouts_errors_and_malformed_replies_are_reply_errors():
             with pytest.raises(PolicyReplyError, match=message):
                 policy.act({"state": np.full((1, 4), mode, np.float32)})
         slow.set()
-        with pytest.raises(PolicyReplyError, match=r"no reply from .* within 0.3 s \(policy.timeout\)"):
-            policy.act(state)
+        with pytest.raises(PolicyInterrupted, match=r"no reply from .* within 0.3 s \(policy.timeout"):
+            policy.act(state)  # a stalled server: no outcome of the trial's, which is re-run (issue 40)
         slow.clear()
-        time.sleep(0.5)  # the late reply arrives; the next request must skip it, not take it for its own
+        time.sleep(0.5)  # the late reply arrives; the next request (on a new connection) must not take it
         with pytest.raises(PolicyReplyError, match=r"action of shape \(1, 3\)"):
             policy.act({"state": np.full((1, 4), 1, np.float32)})
 
 
-def test_a_timeout_in_a_trial_is_a_sim_error_with_its_reason(u_mesh):
-    def act(obs):
-        time.sleep(0.5)
-        return np.zeros((1, 2))
+def test_a_stalled_server_reruns_the_trial_and_stops_the_evaluation_if_it_stays_silent(u_mesh, tmp_path, toy_path):
+    """Issue 40: a reply later than ``policy.timeout`` made the trial a ``sim_error`` (a candidate unscored, the
+    table normal). It is no outcome of the trial's: the trial is re-run, so a stall changes no score; a server
+    that stays silent stops the evaluation in one line (a red-team run then resumes, every trial scored)."""
+    seeds = list(range(6))
+    session = PointMassSession(GreedyPolicy())
+    session.load_object(u_mesh, [])
+    local = [(t.seed, t.mode, t.score) for t in (session.run_trial(s) for s in seeds)]
+    stalls, greedy = {"left": 1, "always": False}, GreedyPolicy()
 
-    with serve(act=act) as server:
-        session = PointMassSession(connect(server.url, timeout=0.2))
-        session.load_object(u_mesh, [])
-        outcome = session.run_trial(1)
-    assert outcome.mode == "sim_error" and not outcome.success
-    assert "PolicyReplyError: no reply from ws://127.0.0.1" in outcome.info["error"]
+    def act(obs):
+        if stalls["always"] or stalls["left"] > 0:
+            stalls["left"] -= 1
+            time.sleep(0.6)
+        return greedy.act(obs)
+
+    with serve(act=act) as server, _evaluator({"_target_": "grt.policies.remote.connect", "url": server.url,
+                                               "timeout": 0.3, "retry_wait": 0.1}, u_mesh, tmp_path,
+                                              workers=1) as ev:
+        (result,) = ev.evaluate([u_mesh], seeds)
+        assert stalls["left"] == 0 and [(t.seed, t.mode, t.score) for t in result.trials] == local
+        stalls["always"] = True
+        with pytest.raises(PolicyServerError, match=r"interrupted 3 times in a row: no reply from .* within 0.3 s "
+                                                    r"\(policy.timeout.*the evaluation stopped"):
+            ev.evaluate([u_mesh], seeds)
+    with pytest.raises(PolicyServerError, match=r"policy.timeout=0: the seconds to wait .* must be > 0"):
+        connect("ws://127.0.0.1:1", timeout=0)  # every trial lost to a zero wait (exit code 0 before)
 
 
 def test_a_grasp_planner_served():

@@ -37,6 +37,13 @@ def test_the_report_draws_plays_and_stays_offline(run_copy, tmp_path):
         b.open(run_copy / "report.html")
         views = b.js("document.querySelectorAll('canvas.grt-mesh').length")
         assert views == 2 * len(json.loads((run_copy / "summary.json").read_text())["crashshapes"])
+        # each CrashShape beside its nominal object, not below it (issue 40: a long note widened the card)
+        rows = b.js("""Array.from(document.querySelectorAll('canvas.grt-mesh')).map(c =>
+            [c.dataset.group, c.dataset.mesh, Math.round(c.getBoundingClientRect().top)])""")
+        tops = {}
+        for group, _, top in rows:
+            tops.setdefault(group, set()).add(top)
+        assert all(len(t) == 1 for t in tops.values()), rows
         drawn = b.js("Array.from(document.querySelectorAll('canvas.grt-mesh')).map(c => Number(c.dataset.drawn || 0))")
         assert all(d >= 1 for d in drawn), drawn
         # not blank: the rendered pixels of every 3D view hold more than the white background

@@ -72,6 +72,33 @@ def test_failure_modes_and_seeds_of_every_trial_are_shown(toy_run):
     assert f"<title>missed: {fails} of {len(rec['trials'])}</title>" in page
 
 
+def test_each_mode_shown_is_explained_where_it_is_shown(run_copy):
+    """Beside the modes' bars and under each video, what each mode means, from the task module's docstring
+    (issue 40: a video of an unreachable grasp showed a robot that never moves, and nothing said why)."""
+    import html
+
+    from grt.rerun import write_video
+    from grt.tasks.base import mode_meanings
+
+    config = run_copy / "run_config.yaml"  # the toy run as a grasp run: its modes are the grasp task's
+    config.chmod(0o644)
+    config.write_text(config.read_text().replace("tests.runner._toy_run.ToyTaskSession", "grt.tasks.grasp.GraspSession"))
+    shape = json.loads((run_copy / "summary.json").read_text())["crashshapes"][0]
+    name = f"it{shape['iteration']}_c{shape['candidate']}_seed7.mp4"
+    write_video([np.full((32, 32, 3), 90, np.uint8)] * 4, run_copy / "videos" / name, fps=10)
+    clip = {"file": name, "label": "CrashShape", "mode": "unreachable", "journal_mode": "unreachable"}
+    (run_copy / "videos" / "videos.json").write_text(json.dumps({"pairs": [{"title": "rank 1", "seed": 7,
+                                                                            "clips": [clip]}]}))
+    page = write_report(run_copy)[0].read_text()
+    meanings = mode_meanings("grt.tasks.grasp.GraspSession")
+    modes = page[page.index("id='modes'"):page.index("id='videos'")]
+    for mode in ("missed", "success"):  # the toy run's modes
+        assert f"<b class='{'' if mode == 'success' else 'mode-bad'}'>{mode}</b>: {html.escape(meanings[mode])}" \
+            in modes, mode
+    videos = page[page.index("id='videos'"):]
+    assert html.escape(meanings["unreachable"]) in videos and "never moved" in meanings["unreachable"]
+
+
 def test_a_sweep_page_links_each_runs_page(toy_run, tmp_path):
     for name in ("a", "b"):
         shutil.copytree(toy_run, tmp_path / "sweep" / name)

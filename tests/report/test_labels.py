@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 
 import pytest
 from omegaconf import OmegaConf
@@ -107,6 +108,24 @@ def test_console_summary_names_the_score(tmp_path, capsys):
     print_summary(summary, tmp_path)
     out = capsys.readouterr().out
     assert "0.35 m" in out and "0.05 m" in out and "mean opening (m)" in out and "85.7%" in out
+
+
+def test_an_unreached_iter_at_50_reads_as_not_reached_not_as_an_iteration(toy_run, tmp_path, capsys):
+    """Iter@50% is the budget T when the drop never reached 50%: ``2 (not reached)`` read as "at 2" (issue 40)."""
+    from grt.report.html import render_run
+
+    summary = {"task": "grasp", "object": "mug", "selector": "heuristic", "optimizer": "topdm", "s0": 0.5,
+               "best_score": 0.4, "final_drop": 0.2, "iter_at_50": 2, "reached_50": False, "auc": 0.3,
+               "delta_complexity": 0.1, "evaluations": 7, "wall_s": 3.0}
+    print_summary(summary, tmp_path)
+    out = capsys.readouterr().out
+    assert "not reached in 2" in out and "(not reached)" not in out
+    run = tmp_path / "run"
+    shutil.copytree(toy_run, run)
+    on_disk = json.loads((run / "summary.json").read_text())
+    (run / "summary.json").write_text(json.dumps({**on_disk, "iter_at_50": 2, "reached_50": False}))
+    page = render_run(run)
+    assert "<td>not reached in 2</td>" in page and "(not reached)" not in page
 
 
 def test_blue_team_table_names_the_score(tmp_path):

@@ -9,6 +9,7 @@ import torch
 from grt.policies.rsl_rl import CheckpointError, RslRlPolicy
 from grt.rl.train import TrainSpec, export_policy, train
 from grt.rl.vec_env import TaskVecEnv
+from grt.targets import ClassError
 
 
 def test_vec_env_follows_the_rsl_rl_contract(reach_task, box_shape):
@@ -34,6 +35,16 @@ def test_vec_env_is_reproducible_and_worker_count_free(reach_task, box_shape):
 
     assert torch.equal(goals(0), goals(0))
     assert torch.equal(goals(0), goals(2))  # one process or two: the same episodes
+
+
+def test_a_session_that_cannot_be_built_is_one_line_with_its_traceback_in_a_file(reach_task, box_shape):
+    """What grt.train says (exit code 2) when the task's session cannot be built (in this process; the workers
+    send their traceback back and the same line is made of it: grt.targets.worker_error)."""
+    task = {**reach_task, "session": {**reach_task["session"], "bogus_key": 1}}
+    with pytest.raises(ClassError, match=r"task.session \(_reach_task.ReachSession\): building it raised TypeError: "
+                                         r".*'bogus_key' \(the whole traceback: ") as info:
+        TaskVecEnv(task, [box_shape], num_envs=1, workers=0, seed=0)
+    assert len(str(info.value).splitlines()) == 1
 
 
 def test_shape_weights_are_checked(reach_task, box_shape):

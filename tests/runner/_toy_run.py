@@ -1,7 +1,7 @@
 """A whole ``python -m grt.run`` without the simulator, for the resume tests (imported by the app).
 
-``TOY`` are the overrides of such a run: the task's session class is the base :class:`TaskSession` (only its
-class-level checks run) and :class:`ToyEvaluator` scores a candidate by its volume, one mesh after the other, each called back (and so
+``TOY`` are the overrides of such a run: the task's session class is the base :class:`TaskSession`'s
+(:class:`ToyTaskSession`: only its class-level checks run) and :class:`ToyEvaluator` scores a candidate by its volume, one mesh after the other, each called back (and so
 journaled) before the next starts. With the environment variable ``GRT_TEST_INTERRUPT_AT=n`` the n-th mesh
 scored raises ``KeyboardInterrupt``, as Ctrl-C would; with ``GRT_TEST_HOLD_FILE=PATH`` every mesh after the
 first (the nominal object) waits while PATH exists (at most 120 s): a test holds a run mid-way, with one
@@ -22,10 +22,18 @@ import numpy as np
 
 from grt.evaluators.base import CandidateResult, Evaluator
 from grt.geometry.mesh import mesh_hash
-from grt.tasks.base import TrialOutcome
+from grt.tasks.base import TaskSession, TrialOutcome
 
-TOY = ["task.session._target_=grt.tasks.base.TaskSession",
+TOY = ["task.session._target_=tests.runner._toy_run.ToyTaskSession",
        "evaluator._target_=tests.runner._toy_run.ToyEvaluator"]
+
+
+class ToyTaskSession(TaskSession):
+    """The base session's class-level checks (``check_object``, ``observation_spec``); never built (the toy
+    evaluator scores without a simulator). It takes the task's session keys, as a real session does."""
+
+    def __init__(self, **session_kwargs):
+        raise NotImplementedError("the toy runs score without a task session")
 
 
 class ToyEvaluator(Evaluator):

@@ -160,7 +160,7 @@ def _temp_files(folder):
 def test_rewriting_crashshapes_removes_stale_ranks_and_leaves_no_temp_files(tmp_path):
     box = trimesh.creation.box((0.05, 0.05, 0.05))
     first = [{"iteration": 2, "candidate": 1, "score": 0.1}, {"iteration": 1, "candidate": 0, "score": 0.2}]
-    save_crashshapes(tmp_path, first, [box, box], _Parts())
+    save_crashshapes(tmp_path, first, [box, box], _Parts(), scale=0.001)  # also rank*_mm.stl / .obj
     out = tmp_path / "crashshapes"
     (out / "notes.txt").write_text("mine")  # not a CrashShape: left alone
     (out / "rank1_it2_c1_parts" / "part07.obj").write_text("stale part")
@@ -168,7 +168,7 @@ def test_rewriting_crashshapes_removes_stale_ranks_and_leaves_no_temp_files(tmp_
     second = [{"iteration": 3, "candidate": 0, "score": 0.0}, {"iteration": 2, "candidate": 1, "score": 0.1}]
     saved = save_crashshapes(tmp_path, second, [box, box], _Parts())
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["notes.txt", "rank1_it3_c0.obj", "rank1_it3_c0.stl", "rank1_it3_c0_parts",
+    assert names == ["README.txt", "notes.txt", "rank1_it3_c0.obj", "rank1_it3_c0.stl", "rank1_it3_c0_parts",
                      "rank2_it2_c1.obj", "rank2_it2_c1.stl", "rank2_it2_c1_parts"]
     assert [s["file"] for s in saved] == ["crashshapes/rank1_it3_c0.stl", "crashshapes/rank2_it2_c1.stl"]
     assert trimesh.load(out / "rank1_it3_c0.stl").is_watertight

@@ -34,7 +34,9 @@ from tests.runner.conftest import compose_run
 
 ROOT = Path(__file__).resolve().parents[2]
 RELEASE = ROOT / "tests" / "data" / "run_format1_toy"
-RELEASE_COMMAND = ["budget=smoke", "selector.k=3", "optimizer=gaussian", *TOY]  # its overrides (module doc)
+# its overrides (module doc): the toy run's of its release, when the toy session was the base class itself
+RELEASE_COMMAND = ["budget=smoke", "selector.k=3", "optimizer=gaussian", "task.session._target_=grt.tasks.base.TaskSession",
+                   TOY[1]]
 
 
 @pytest.fixture

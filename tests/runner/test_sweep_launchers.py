@@ -46,7 +46,7 @@ def test_a_submitit_sweep_runs_each_job_in_its_own_process_and_run_folder(tmp_pa
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     (sweep,) = tmp_path.iterdir()
     jobs = sorted(p for p in sweep.iterdir() if p.is_dir() and not p.name.startswith("."))
-    assert [p.name for p in jobs] == ["0_heuristic-topdm", "1_heuristic-topdm"]
+    assert [p.name for p in jobs] == ["0_insertion_state_heuristic-topdm", "1_insertion_state_heuristic-topdm"]
     for seed, job in enumerate(jobs):
         summary = json.loads((job / "summary.json").read_text())
         assert summary["evaluations"] == 7 and len(_lines(job / "journal.jsonl")) == 7
@@ -69,7 +69,7 @@ def test_a_job_that_dies_is_one_line_and_the_same_sweep_again_goes_on_from_its_j
     args = ["-m", "hydra/launcher=submitit_local", "budget=smoke", "selector.k=3", "budget.trials=2", *TOY,
             f"hydra.sweep.dir={tmp_path}"]
     res = _cli(*args, env={"GRT_TEST_INTERRUPT_AT": "3"})
-    job = tmp_path / "0_heuristic-topdm"
+    job = tmp_path / "0_antipodal_heuristic-topdm"
     (line,) = [line for line in res.stderr.splitlines() if line.startswith("error:")]
     assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr[-3000:]
     assert "a job of the sweep did not finish" in line and "_0_log.err" in line

@@ -140,3 +140,72 @@ def test_closed_loop_policy_is_judged_too(session, tmp_path):
     assert outcome.mode == "missed" and outcome.score == 0.0
     session.render(str(tmp_path / "final.png"))
     assert (tmp_path / "final.png").stat().st_size > 1000
+
+
+def _in_view(eye, target, fov, points) -> np.ndarray:
+    """``(N, 2)`` image coordinates in [-1, 1] (the view's edges) of ``points`` seen by a pinhole camera."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    rel = np.asarray(points) - eye
+    depth = rel @ forward
+    return np.stack([rel @ right, rel @ up], 1) / (depth[:, None] * np.tan(fov / 2))
+
+
+def test_the_render_camera_frames_the_object_and_its_lift_and_shake():
+    """The videos' camera looks at the object (issue 40: the mug filled a few percent of a fixed table view):
+    the object spans a fifth of the view or more, and the room its lift and shake need is all in view."""
+    from grt.objects import get_object
+    from grt.tasks.grasp_env import LIFT_SHAKE_ROOM, RENDER_FOV, framing_camera
+
+    old_eye, old_target = np.array([0.45, 0.55, 0.45]), np.array([0.0, 0.0, 0.1])  # the fixed camera before
+    for name in ("mug", "bottle", "hammer", "can"):
+        mesh = get_object(name)
+        eye, target = framing_camera(mesh)
+        corners = trimesh.bounds.corners(mesh.bounds)
+        lift, shake, _ = LIFT_SHAKE_ROOM
+        moved = corners + [0.0, shake, lift]  # lifted and shaken
+        for points in (corners, moved):
+            xy = _in_view(eye, target, RENDER_FOV, points)
+            assert np.abs(xy).max() <= 1.0, (name, xy)
+        span = np.ptp(_in_view(eye, target, RENDER_FOV, corners), axis=0).max() / 2  # fraction of the view
+        assert span >= 0.2, (name, span)
+        if name == "mug":
+            old = np.ptp(_in_view(old_eye, old_target, 1.0, corners), axis=0).max() / 2
+            assert old < 0.2 and span > 1.8 * old, (old, span)  # 17% -> 33% of the width: 3.7x the area
+
+
+class _NaNPlanner(AntipodalGraspPolicy):
+    """A grasp planner whose network diverged: its best grasp has a NaN pose."""
+
+    def plan(self, obs, seed):
+        from grt.policies.base import Grasp
+
+        return [Grasp(pose=np.full((4, 4), np.nan), width=0.03, score=1.0)]
+
+
+class _BadStep(GraspStepPolicy):
+    def __init__(self, action):
+        self.action = action
+
+    def act(self, obs):
+        return self.action
+
+
+@pytest.mark.parametrize(("policy", "message"), [
+    (_NaNPlanner(), "_NaNPlanner returned a non-finite grasp (grasp 0: pose [[nan"),
+    (_BadStep(np.full(8, np.nan)), "_BadStep returned a non-finite action [nan"),
+    (_BadStep(np.zeros(7)), "_BadStep returned actions of shape (7,); the task takes (8,)")])
+def test_unusable_policy_output_is_a_sim_error_naming_the_policy_never_missed(session, policy, message):
+    """Issue 40: a NaN grasp pose was scored as a physical ``missed``; a sim_error naming the policy now, for
+    grasp planners and step-by-step grasp policies alike (closed-loop tasks: tests/policies/test_policy_output.py)."""
+    session.load_object(box(), [np.asarray(box().vertices)])
+    planner, session.policy = session.policy, policy
+    try:
+        outcome = session.run_trial(0)
+    finally:
+        session.policy = planner
+    assert outcome.mode == "sim_error" and not outcome.success
+    assert outcome.info["error"].startswith("PolicyOutputError: policy ") and message in outcome.info["error"], \
+        outcome.info["error"]

@@ -39,6 +39,10 @@ def test_unknown_plug_geometry_asks_for_the_config_keys():
     assert plug_geometry("usb_plug", None, None) == (0.012, 0.030)
     with pytest.raises(PlugFitError, match="task.session.head_length"):
         plug_geometry("/tmp/my_plug.obj", None, None)
+    # 'plug' is built in, but for grasping (it lies on its side): the message says so and names the plugs
+    with pytest.raises(PlugFitError, match=r"'plug' is a built-in object of the grasp task .* the insertion task's "
+                                           r"built-in plugs are round_peg, usb_plug"):
+        plug_geometry("plug", None, None)
 
 
 def test_a_plug_too_wide_for_the_gripper_is_refused_before_simulation():

@@ -1,0 +1,159 @@
+"""Settings checked before anything is written: keys nothing reads, and the plain sections' values.
+
+:func:`check_added_keys`: a key added on the command line with ``+`` (``+deformer.lamda=2``, ``+foo=1``) that
+no code reads is refused with the section's keys and the close name, as ``+budget.foo=1`` is
+(:func:`grt.config.unknown_budget_key`). A key added under a node with a ``_target_`` is an argument of its
+class (:func:`grt.targets.check_target` checks that the class takes it), and a few keys GRT reads when they
+are there may be left out of a YAML (:data:`READ_IF_GIVEN`: ``+task.ci=wilson``).
+
+:func:`check_sections`: the values of the plain sections a run uses (``deformer``, ``mesh``, ``report``, the
+task's score settings), which their users would otherwise check only after the run folder's record is
+saved. Both run in :func:`grt.config.validate`, each app's first step.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+
+from omegaconf import DictConfig, OmegaConf
+
+from grt.errors import UserError
+
+#: Keys GRT reads from a section when they are given, that its YAMLs may leave out (so ``+key=`` adds them).
+READ_IF_GIVEN: dict[str, tuple[str, ...]] = {
+    "task": ("score_unit", "ci", "nominal_floor", "crash_margin", "manual"),
+    "train": ("bc", "validation", "export", "overwrite_shipped", "seed", "freeze_normalization"),
+}
+
+
+class SettingError(UserError):
+    """A key nothing reads, or a section's value out of range; the message names the key and the fix."""
+
+
+def check_added_keys(cfg: DictConfig, overrides: list[str], app: str = "this command",
+                     groups: set[str] | frozenset[str] = frozenset()) -> None:
+    """Refuse keys added with ``+key=value`` that nothing reads (``++`` forces a value and is not checked).
+
+    Args:
+        cfg: the composed root config.
+        overrides: the command's overrides (Hydra's ``overrides.task``).
+        app: the command, for the message (``grt.run``).
+        groups: the config groups of the command (``+experiment=NAME`` adds a group's option, not a key).
+
+    Raises:
+        SettingError: names the key, the keys of its section and the closest one.
+    """
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    added = {o.key_or_group for o in parsed if o.is_add()}
+    deleted = {o.key_or_group for o in parsed if o.is_delete()}
+    for key in sorted(added):
+        if key in groups or key == "hydra" or key.startswith(("hydra.", "hydra/", "budget.")) or "/" in key:
+            continue  # Hydra's own settings; the budget's schema refuses its unknown keys itself
+        _check_path(cfg, key, added, deleted, app)
+
+
+def _check_path(cfg: DictConfig, key: str, added: set[str], deleted: set[str], app: str) -> None:
+    parts = key.split(".")
+    node = cfg
+    for depth, name in enumerate(parts):
+        if isinstance(node, DictConfig) and "_target_" in node:
+            return  # an argument of a class (or inside one): the class's signature decides
+        section = ".".join(parts[:depth])
+        known = _known(node, section, added, deleted)
+        if name not in known:
+            raise SettingError(_unread(key, section, name, known, app))
+        node = node._get_node(name) if isinstance(node, DictConfig) else None
+        if not isinstance(node, DictConfig):
+            return
+
+
+def _known(node, section: str, added: set[str], deleted: set[str]) -> list[str]:
+    """The keys of ``section`` something reads: those its YAML has (not only added by ``+``), those
+    :data:`READ_IF_GIVEN` names, and a node deleted (``~key``) and given again."""
+    names = set(READ_IF_GIVEN.get(section, ()))
+    if isinstance(node, DictConfig):
+        for name in node:
+            path = f"{section}.{name}" if section else str(name)
+            if path in deleted or not _created(node._get_node(name), path, added):
+                names.add(str(name))
+    return sorted(names)
+
+
+def _created(node, path: str, added: set[str]) -> bool:
+    """Whether the node at ``path`` exists only because ``+`` overrides added it (or keys under it)."""
+    if path in added:
+        return True
+    if isinstance(node, DictConfig) and len(node) > 0 and "_target_" not in node:
+        return all(_created(node._get_node(k), f"{path}.{k}", added) for k in node)
+    return False
+
+
+def _unread(key: str, section: str, name: str, known: list[str], app: str) -> str:
+    where = section or app
+    close = difflib.get_close_matches(name, known, n=1)
+    hint = f"; did you mean {f'{section}.' if section else ''}{close[0]}?" if close else ""
+    keys = f"{where}'s keys are {', '.join(known)}" if known else f"{where} has no keys of its own"
+    return f"+{key}: nothing reads {key} (added with '+', it would be stored and never used); {keys}{hint}"
+
+
+def check_sections(cfg: DictConfig) -> None:
+    """Check the plain sections' values that are cheap to check, before anything is written: ``deformer``
+    (method, lam, radius, validity, max_volume_change), ``mesh`` (:class:`grt.geometry.prepare.MeshSettings`),
+    ``report.videos`` and the task's score settings (``task.ci``, ``task.nominal_floor``,
+    ``task.crash_margin``).
+
+    Raises:
+        UserError: one line naming the key and what it accepts.
+    """
+    deformer = cfg.get("deformer")
+    if isinstance(deformer, DictConfig):
+        check_deformer(deformer)
+    if "mesh" in cfg:
+        from grt.geometry.prepare import MeshSettings
+
+        MeshSettings.from_config(cfg.get("mesh"))
+    videos = OmegaConf.select(cfg, "report.videos", default=0)
+    if not (isinstance(videos, int) and not isinstance(videos, bool) and videos >= 0):
+        raise SettingError(f"report.videos={videos!r}: give an integer >= 0 (CrashShapes filmed; 0: none)")
+    task = cfg.get("task")
+    if isinstance(task, DictConfig) and "score" in task:
+        from grt.scores import ScoreSpec, crash_margin, nominal_floor
+
+        ScoreSpec.from_task(task)
+        nominal_floor(task)
+        crash_margin(task)
+
+
+def check_deformer(node) -> None:
+    """Refuse ``deformer.*`` values :class:`grt.geometry.deform.ShapeDeformer` or the validity check would
+    refuse (or misread) only after the run's record is saved.
+
+    Raises:
+        SettingError: names the key, the value and what it accepts.
+    """
+    from grt.geometry.deform import METHODS
+
+    method = node.get("method", "exact")
+    if method not in METHODS:
+        raise SettingError(f"deformer.method={method!r}: use one of {', '.join(METHODS)}")
+    for key, low, high, accepts in (("lam", 0, math.inf, "a number > 0 (the anchors' weight)"),
+                                    ("radius", 0, 1, "a number in (0, 1] (a fraction of the bounding-box "
+                                     "diagonal)")):
+        value = node.get(key, 1.0)
+        if not _number(value) or not low < value <= high:
+            raise SettingError(f"deformer.{key}={value!r}: give {accepts}")
+    validity = node.get("validity", True)
+    if not isinstance(validity, bool):
+        raise SettingError(f"deformer.validity={validity!r}: give true (check every candidate for "
+                           "self-intersections and folds) or false")
+    bound = node.get("max_volume_change")
+    if bound is not None and (not _number(bound) or not bound > 0):
+        raise SettingError(f"deformer.max_volume_change={bound!r}: give a number > 0 (a fraction of the volume) "
+                           "or null (not checked)")
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)

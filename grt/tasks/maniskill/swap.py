@@ -1,0 +1,355 @@
+"""Swap one actor of any ManiSkill env for a candidate mesh, inside the env's own (re)configuration.
+
+:class:`ActorSwap` intercepts ``ActorBuilder.build`` (ManiSkill's, process-wide, once) for the builder whose
+name matches the task's ``actor`` (an exact name or a regex, ``re.fullmatch``) while *its* env loads its
+scene. The builder keeps everything the env gave it — name, body type, initial pose, ``scene_idxs``,
+collision groups, mass settings — and gets, instead of its collision records, the candidate's convex
+parts (``physx.PhysxCollisionShapeConvexMesh`` from vertex arrays, each part with the density, material
+and patch radii of the stock record nearest it) and, instead of its visuals, the candidate's mesh
+(``render.RenderShapeTriangleMesh``, coloured as the stock visual). With no candidate loaded the stock
+actor is built as the env made it, and its records are kept (the nominal geometry of that build).
+
+Batched from the start: candidates are held per sub-scene index (:meth:`ActorSwap.set_candidates`). A
+builder that spans sub-scenes holding different candidates is split into one builder per sub-scene
+(``set_scene_idxs([i])``) and the actors merged under the env's name (``Actor.merge``, as ManiSkill's
+``pick_single_ycb.py`` does); on the CPU backend (one sub-scene) there is one candidate and one build.
+
+Hooks on the env instance (:meth:`ActorSwap.attach`), so that whoever resets the env — the session, or a
+policy that drives the env itself (a motion planner's ``solve(env, seed)``) — gets the candidate:
+
+- ``_load_scene``: the interception is on while the env builds its scene (every reconfigure: envs that
+  rebuild at every reset, such as PegInsertionSide, get the candidate at every rebuild). An env that draws
+  the actor's size at each rebuild gets the candidate scaled per axis by this build's stock extents over
+  the reference build's (the first one), so the candidate follows the env's own size randomization.
+- ``_initialize_episode``: after the env placed the actor (by its *stock* size), **settle**: a candidate
+  that reaches lower than the stock actor at that pose (a taller cube starts inside the table) is lifted
+  by the difference, to rest where the stock actor rested.
+- ``evaluate``: the **refresh** (the task's ``refresh`` function, :mod:`grt.tasks.maniskill.refresh`) sets
+  the attributes the env's success check reads from the candidate's geometry (``cube_half_size``,
+  ``peg_head_offsets``, ...) before every check; the stock values are put back before the env loads a
+  scene or places an episode, so the env's own logic always sees its stock numbers.
+"""
+
+from __future__ import annotations
+
+import copy
+import re
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from grt.tasks.maniskill.geometry import ShapeRecord, nearest_records, read_records, records_mesh
+
+_ACTIVE: list[ActorSwap] = []  # the swap whose env is loading its scene now (a stack: one env per process)
+_ORIGINAL_BUILD = None
+
+
+def _install() -> None:
+    """Route ManiSkill's ``ActorBuilder.build`` through the active swap (once per process)."""
+    global _ORIGINAL_BUILD
+    from mani_skill.utils.building.actor_builder import ActorBuilder
+
+    if _ORIGINAL_BUILD is not None:
+        return
+    _ORIGINAL_BUILD = ActorBuilder.build
+
+    def build(self, name):
+        if _ACTIVE:
+            return _ACTIVE[-1].build(self, name)
+        return _ORIGINAL_BUILD(self, name)
+
+    ActorBuilder.build = build
+
+
+@dataclass
+class Candidate:
+    """A candidate object in the actor frame of the reference build (m).
+
+    Attributes:
+        mesh: the visual mesh; parts: convex collision parts, each ``(K, 3)``.
+    """
+
+    mesh: trimesh.Trimesh
+    parts: list[np.ndarray]
+
+
+@dataclass
+class Build:
+    """One build of a matching actor in the current scene.
+
+    Attributes:
+        name: the builder's name; scene_idxs: the sub-scenes it spans.
+        records: the stock collision records; stock: their solid (actor frame, m).
+        actor: the ManiSkill ``Actor`` built; scale: ``(3,)`` per-axis scale applied to the candidate.
+        hulls: per sub-scene of ``scene_idxs``, ``(K, 3)`` actor-frame points of what was built (the
+            candidate's part vertices, or the stock solid's vertices when no candidate).
+        swapped: whether the candidate was built (else the stock actor).
+    """
+
+    name: str
+    scene_idxs: list[int]
+    records: list[ShapeRecord]
+    stock: trimesh.Trimesh
+    actor: object = None
+    scale: np.ndarray = field(default_factory=lambda: np.ones(3))
+    hulls: list[np.ndarray] = field(default_factory=list)
+    swapped: bool = False
+
+
+class ActorSwap:
+    """Builds one named actor of an env from a candidate mesh; see the module docstring.
+
+    Args:
+        actor: the actor's builder name, exact or a regex (``peg_\\d+``), matched with ``re.fullmatch``.
+        refresh: ``refresh(env, swap) -> {attribute: value}``, the attributes the env's success check reads,
+            computed from the candidate's geometry (``None``: nothing to refresh).
+    """
+
+    def __init__(self, actor: str, refresh: Callable[[object, ActorSwap], dict] | None = None):
+        self.pattern = re.compile(str(actor))
+        self.refresh = refresh
+        self.candidates: dict[int, Candidate] = {}
+        self.reference: trimesh.Trimesh | None = None  # the first build's stock solid (actor frame)
+        self.reference_solids: list[trimesh.Trimesh] = []  # ... and its records' solids, one per record
+        self.builds: list[Build] = []
+        self.names: list[str] = []  # every actor name built in the last scene (for messages)
+        self.env = None
+        self._saved: dict[str, object] = {}
+        _install()
+
+    # ------------------------------------------------------------------ candidates
+    def set_candidates(self, candidates: dict[int, Candidate] | Candidate | None) -> None:
+        """The candidate of each sub-scene (one :class:`Candidate` for all; ``None`` or ``{}``: the stock
+        actor). Takes effect at the env's next (re)configuration."""
+        if isinstance(candidates, Candidate):
+            candidates = {-1: candidates}
+        self.candidates = dict(candidates or {})
+
+    def candidate(self, scene_idx: int) -> Candidate | None:
+        return self.candidates.get(int(scene_idx), self.candidates.get(-1))
+
+    def matches(self, name: str) -> bool:
+        return self.pattern.fullmatch(name) is not None
+
+    @property
+    def swapped(self) -> bool:
+        """Whether the current scene holds a candidate (not the stock actor)."""
+        return any(b.swapped for b in self.builds)
+
+    # ------------------------------------------------------------------ interception
+    @contextmanager
+    def active(self) -> Iterator[None]:
+        """Intercept the builds of the scene loaded inside this block (a new scene forgets the last builds)."""
+        self.builds, self.names = [], []
+        _ACTIVE.append(self)
+        try:
+            yield
+        finally:
+            _ACTIVE.remove(self)
+
+    def build(self, builder, name: str):
+        """The interception of ``ActorBuilder.build`` (see the module docstring)."""
+        self.names.append(str(name))
+        if not self.matches(str(name)):
+            return _ORIGINAL_BUILD(builder, name)
+        records = read_records(builder)
+        stock = records_mesh(records)
+        if self.reference is None:
+            self.reference = stock
+            self.reference_solids = [r.mesh for r in records if r.mesh is not None]
+        num = builder.scene.num_envs
+        idxs = [int(i) for i in (range(num) if builder.scene_idxs is None else list(builder.scene_idxs))]
+        scale = np.asarray(stock.extents, np.float64) / np.maximum(np.asarray(self.reference.extents), 1e-12)
+        chosen = [self.candidate(i) for i in idxs]
+        rec = Build(str(name), idxs, records, stock, scale=scale)
+        if all(c is None for c in chosen):
+            rec.actor = _ORIGINAL_BUILD(builder, name)
+            rec.hulls = [np.asarray(stock.vertices) for _ in idxs]
+        elif all(c is chosen[0] for c in chosen):
+            rec.actor, hull = self._build_one(builder, name, chosen[0], records, scale)
+            rec.hulls, rec.swapped = [hull for _ in idxs], True
+        else:
+            rec.actor, rec.hulls = self._build_per_scene(builder, name, idxs, chosen, records, scale, stock)
+            rec.swapped = True
+        self.builds.append(rec)
+        return rec.actor
+
+    def _build_per_scene(self, builder, name, idxs, chosen, records, scale, stock):
+        """One builder per sub-scene (its own candidate), merged under the env's name (GPU backend)."""
+        from mani_skill.utils.structs.actor import Actor
+        from mani_skill.utils.structs.pose import Pose
+
+        pose = Pose.create(builder.initial_pose) if builder.initial_pose is not None else None
+        actors, hulls = [], []
+        for k, (i, cand) in enumerate(zip(idxs, chosen, strict=True)):
+            one = copy.copy(builder)
+            one.collision_records, one.visual_records = list(builder.collision_records), list(builder.visual_records)
+            one._procedural_shapes = list(builder._procedural_shapes)
+            one.set_scene_idxs([i])
+            if pose is not None:
+                one.initial_pose = Pose.create(pose.raw_pose[k if len(pose.raw_pose) > 1 else 0])
+            if cand is None:
+                actor, hull = _ORIGINAL_BUILD(one, f"{name}-scene{i}"), np.asarray(stock.vertices)
+            else:
+                actor, hull = self._build_one(one, f"{name}-scene{i}", cand, records, scale)
+            builder.scene.remove_from_state_dict_registry(actor)
+            actors.append(actor)
+            hulls.append(hull)
+        merged = Actor.merge(actors, name)
+        builder.scene.add_to_state_dict_registry(merged)
+        return merged, hulls
+
+    def _build_one(self, builder, name, cand: Candidate, records: list[ShapeRecord], scale: np.ndarray):
+        """Build ``cand`` (scaled per axis by ``scale``) with the builder's settings; returns (actor, hull points)."""
+        from grt.tasks.scene import attach_convex_parts, render_mesh_shape
+
+        parts = [np.asarray(p, np.float64) * scale for p in cand.parts]
+        owners = nearest_records(parts, records)
+        colour = _stock_colour(builder)
+        builder.collision_records, builder.visual_records = [], []
+        if builder.scene.can_render():
+            mesh = cand.mesh.copy()
+            mesh.vertices = np.asarray(mesh.vertices) * scale
+            builder._procedural_shapes = [*builder._procedural_shapes, render_mesh_shape(mesh, colour)]
+        stock_component = builder.build_physx_component
+        counted = []
+
+        def build_physx_component(link_parent=None):
+            component = stock_component(link_parent)
+            built = 0
+            for part, k in zip(parts, owners, strict=True):
+                r = records[k]
+                built += attach_convex_parts(component, [part], r.material, r.density, builder.collision_groups)
+                for shape in component.collision_shapes[-1:]:
+                    shape.set_patch_radius(r.patch_radius)
+                    shape.set_min_patch_radius(r.min_patch_radius)
+            counted.append(built)
+            return component
+
+        builder.build_physx_component = build_physx_component
+        actor = _ORIGINAL_BUILD(builder, name)
+        if not counted or min(counted) != len(parts):
+            raise ValueError(f"only {min(counted or [0])} of {len(parts)} collision parts of {name!r} were built")
+        return actor, np.concatenate(parts)
+
+    # ------------------------------------------------------------------ the env's hooks
+    def attach(self, env) -> None:
+        """Wrap ``env``'s ``_load_scene``, ``_initialize_episode`` and ``evaluate`` (the instance's, not the
+        class's), so that every reset of this env, by whoever, builds, settles and judges the candidate."""
+        self.env = env
+        load, init, evaluate = env._load_scene, env._initialize_episode, env.evaluate
+
+        def _load_scene(options):
+            self.restore()
+            with self.active():
+                return load(options)
+
+        def _initialize_episode(env_idx, options):
+            self.restore()
+            init(env_idx, options)
+            self.settle(env_idx)
+            self.apply()
+
+        def _evaluate(*args, **kwargs):
+            self.apply()
+            return evaluate(*args, **kwargs)
+
+        env._load_scene, env._initialize_episode, env.evaluate = _load_scene, _initialize_episode, _evaluate
+
+    def settle(self, env_idx) -> list[float]:
+        """Lift each swapped actor being reset whose candidate reaches below where the stock actor reached at
+        the env's pose, by the difference (m; returned per sub-scene, 0 where nothing moved)."""
+        from mani_skill.utils import common
+        from mani_skill.utils.structs.pose import Pose
+
+        lifts = []
+        reset = {int(i) for i in np.asarray(common.to_numpy(env_idx)).reshape(-1)}
+        for b in self.builds:
+            if not b.swapped:
+                continue
+            raw = np.array(common.to_numpy(b.actor.pose.raw_pose), np.float64).reshape(-1, 7)
+            rows = [k for k, i in enumerate(b.scene_idxs) if i in reset]
+            moved = False
+            for k in rows:
+                rot = _quat_matrix(raw[k, 3:7])
+                stock = _lowest(rot, np.asarray(b.stock.vertices) * 1.0)
+                cand = _lowest(rot, b.hulls[k])
+                lift = max(0.0, stock - cand)
+                lifts.append(lift)
+                if lift > 0:
+                    raw[k, 2] += lift
+                    moved = True
+            if moved:
+                b.actor.set_pose(Pose.create(common.to_tensor(raw[rows].astype(np.float32), device=b.actor.device)))
+        return lifts
+
+    def apply(self) -> None:
+        """Set the attributes the env's success check reads from the candidate (see :meth:`restore`)."""
+        if self.refresh is None or not self.swapped or self.env is None:
+            return
+        for attr, value in self.refresh(self.env, self).items():
+            if attr not in self._saved:
+                self._saved[attr] = getattr(self.env, attr)
+            setattr(self.env, attr, value)
+
+    def restore(self) -> None:
+        """Put back the env's stock values of the refreshed attributes."""
+        for attr, value in self._saved.items():
+            setattr(self.env, attr, value)
+        self._saved = {}
+
+    # ------------------------------------------------------------------ geometry of the current scene
+    def build_of(self, scene_idx: int = 0) -> Build:
+        """The build of the swapped actor in sub-scene ``scene_idx``."""
+        for b in self.builds:
+            if scene_idx in b.scene_idxs:
+                return b
+        raise LookupError(f"no actor matching {self.pattern.pattern!r} was built in sub-scene {scene_idx}")
+
+    def hull(self, scene_idx: int = 0) -> np.ndarray:
+        """``(K, 3)`` actor-frame points (m) of what sub-scene ``scene_idx`` holds now (candidate or stock)."""
+        b = self.build_of(scene_idx)
+        return b.hulls[b.scene_idxs.index(scene_idx)]
+
+    def stock_hull(self, scene_idx: int = 0) -> np.ndarray:
+        """``(V, 3)`` actor-frame vertices (m) of the stock actor of sub-scene ``scene_idx``'s build."""
+        return np.asarray(self.build_of(scene_idx).stock.vertices)
+
+    def matched(self) -> list[str]:
+        """The names of the matching actors built in the last scene."""
+        return [b.name for b in self.builds]
+
+
+def _stock_colour(builder) -> tuple[float, float, float]:
+    for r in builder.visual_records:
+        mat = getattr(r, "material", None)
+        if mat is not None and hasattr(mat, "base_color"):
+            return tuple(float(c) for c in list(mat.base_color)[:3])
+    return (0.7, 0.7, 0.7)
+
+
+def _quat_matrix(q: np.ndarray) -> np.ndarray:
+    """``(3, 3)`` rotation of a wxyz quaternion."""
+    w, x, y, z = np.asarray(q, np.float64) / max(np.linalg.norm(q), 1e-12)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def _lowest(rot: np.ndarray, points: np.ndarray) -> float:
+    """The lowest z (m, relative to the actor's origin) of actor-frame ``points`` rotated by ``rot``."""
+    return float((np.asarray(points, np.float64) @ rot[2]).min())
+
+
+def depth_below(swap: ActorSwap, rot: np.ndarray, scene_idx: int = 0) -> float:
+    """How far (m) the actor's origin sits above its lowest point when turned by ``rot`` (world): the
+    height of the origin of the actor resting on a flat surface in that orientation."""
+    return -_lowest(rot, swap.hull(scene_idx))
+
+
+def top_above(points: np.ndarray, rot: np.ndarray) -> float:
+    """How far (m) the highest of actor-frame ``points`` turned by ``rot`` is above the origin."""
+    return float((np.asarray(points, np.float64) @ rot[2]).max())
