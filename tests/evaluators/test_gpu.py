@@ -137,6 +137,10 @@ def test_tasks_and_policies_that_cannot_run_batched_are_refused_in_one_line():
     with pytest.raises(GpuEvaluatorError, match="physx_cpu runs 1 sub-scene per env.*max_envs=1"):
         check_batched(insertion, {"_target_": "grt.policies.servo.ServoInsertionPolicy"}, "physx_cpu", 4)
     check_batched(insertion, {"_target_": "grt.policies.servo.ServoInsertionPolicy"}, "physx_cuda", 4096)
+    push = {"name": "push_cube", "session": {"_target_": "grt.tasks.maniskill.session.ManiSkillSession"}}
+    with pytest.raises(GpuEvaluatorError, match="EnvDriverPolicy is per-env .*motion planner"):
+        check_batched(push, {"_target_": "grt.policies.base.EnvDriverPolicy"})  # ManiSkill's motion planners
+    check_batched(push, {"_target_": "grt.policies.maniskill_experts.PushToGoalPolicy"}, "physx_cuda", 4096)
 
 
 @pytest.mark.skipif(_cuda(), reason="this machine has CUDA: the refusal without it cannot be seen here")
@@ -243,3 +247,27 @@ def test_a_cpu_run_is_not_resumed_on_the_gpu_nor_the_reverse(tmp_path):
     with pytest.raises(ResumeError, match="CPU workers, this command would go on with evaluator=gpu"):
         resumed("evaluator=gpu")
     assert resumed("evaluator=gpu", "evaluator.backend=physx_cpu", "evaluator.max_envs=1").evaluator.max_envs == 1
+
+
+@pytest.mark.sim
+def test_the_gpu_path_drives_a_stock_maniskill_task_as_its_session_does(tmp_path):
+    """Any ManiSkill task (issue 37's session) runs batched too: PushCube-v1 with its expert, through
+    evaluator=gpu on physx_cpu, gives the session's own trial."""
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from tests.runner.conftest import compose_run
+
+    cfg = compose_run(["task=push_cube", "policy=push_cube_expert", f"paths.output_dir={tmp_path}"])
+    task, policy = (OmegaConf.to_container(cfg[k], resolve=True) for k in ("task", "policy"))
+    session = instantiate(task["session"], policy=instantiate(policy), _convert_="all")
+    try:
+        cube = session.nominal_object(**{k: v for k, v in task["session"].items() if k != "_target_"})
+        parts = [np.asarray(cube.convex_hull.vertices)]
+        session.load_object(cube, parts)
+        alone = session.run_trial(3)
+    finally:
+        session.close()
+    with GpuEvaluator(task, policy, collision="coacd", backend="physx_cpu", max_envs=1, progress=False) as ev:
+        result = ev.evaluate([cube], [3], parts=[parts])[0]
+    assert _same(result.trials[0], alone) and alone.mode == "success", (result.trials, alone)
