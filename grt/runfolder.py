@@ -587,9 +587,20 @@ def own_config(cfg: DictConfig) -> DictConfig:
         evaluator, saved_ev = plain(cfg.evaluator), own.get("evaluator") or {}
         evaluator.update({k: plain(saved_ev[k]) if isinstance(saved_ev[k], DictConfig) else saved_ev[k]
                           for k in EVALUATOR_RESULTS if k in saved_ev})
+        if _on_gpu(saved_ev) != _on_gpu(evaluator):  # the GPU's physics is not the CPU's: one journal, one
+            was, now = ("evaluator=gpu", "CPU workers") if _on_gpu(saved_ev) else ("CPU workers", "evaluator=gpu")
+            raise ResumeError(f"resume={cfg.resume}: the run's trials were simulated with {was}, this command would "
+                              f"go on with {now}, whose physics differs (docs/gpu.md): resume it with "
+                              f"{'evaluator=gpu' if _on_gpu(saved_ev) else 'evaluator=sim or evaluator=ray'}")
         own.evaluator = evaluator
     own.resume = cfg.resume
     return own
+
+
+def _on_gpu(evaluator) -> bool:
+    """Whether an evaluator config simulates on a GPU (``evaluator=gpu`` on ``physx_cuda``; on ``physx_cpu``
+    its trials are the CPU workers' bit for bit)."""
+    return str(evaluator.get("_target_", "")).endswith(".GpuEvaluator") and evaluator.get("backend") != "physx_cpu"
 
 
 def own_training_config(cfg: DictConfig) -> DictConfig:

@@ -23,7 +23,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from grt.config import plain
 from grt.confirm import confirm
 from grt.console import progress
-from grt.evaluators.base import NothingScoredError
+from grt.evaluators.base import NothingScoredError, evaluator_preflight
 from grt.fileio import write_text_atomic
 from grt.geometry.complexity import angular_deficit_entropy
 from grt.geometry.deform import ShapeDeformer, deformer_options
@@ -84,6 +84,7 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
         check_same_object(run_dir, mesh, cfg)  # an edited record: refused before any file
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # wrong plug, policy kind or checkpoint: likewise
+    evaluator_preflight(plain(cfg.evaluator), plain(cfg.task), plain(cfg.policy))  # evaluator=gpu without CUDA, ...
     # the user's classes are built before the run's record is saved: one that cannot be built is one line and
     # leaves no folder (grt.targets.build); the workers build the task's session as they start
     selector = None if (run_dir / "handles.json").exists() else build(cfg.selector, "selector")

@@ -29,7 +29,7 @@ from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
 from grt.config import plain, validate
-from grt.evaluators.base import NothingScoredError, check_scored
+from grt.evaluators.base import NothingScoredError, check_scored, evaluator_preflight
 from grt.evaluators.collision import CollisionError
 from grt.geometry.mesh import check_object_size, load_mesh, mesh_hash
 from grt.geometry.prepare import MeshSettings
@@ -57,6 +57,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     check_object_size(mesh)  # a mesh in millimetres: refused before any simulation
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # a policy of the wrong kind: refused first
+    evaluator_preflight(plain(cfg.evaluator), plain(cfg.task), plain(cfg.policy))  # evaluator=gpu without CUDA, ...
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None

@@ -136,3 +136,19 @@ class Evaluator(ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def evaluator_preflight(evaluator: dict, task: dict, policy: dict) -> None:
+    """Refuse, before a command writes anything, what the configured evaluator cannot run: the evaluator
+    class's own ``preflight(task=, policy=, **its config)`` when it has one (``evaluator=gpu``: a task or a
+    policy that cannot run batched, no CUDA); the CPU evaluators run every task and have none.
+
+    Args:
+        evaluator: the evaluator config as a plain dict (``_target_`` and its keys).
+        task, policy: the task and policy configs as plain dicts.
+    """
+    from hydra.utils import get_object
+
+    check = getattr(get_object(str(evaluator["_target_"])), "preflight", None)
+    if check is not None:
+        check(task=task, policy=policy, **{k: v for k, v in evaluator.items() if not k.startswith("_")})

@@ -127,9 +127,13 @@ class RslRlPolicy(BatchedPolicy):
             torch.manual_seed(int(seed))  # a sampled episode is still a function of its seed
 
     @torch.inference_mode()
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+    def act(self, obs: dict) -> np.ndarray:
+        """Actions ``(N, A)`` for observation groups ``{group: (N, ...)}``: numpy arrays in, a numpy array out
+        (moved to :attr:`device` and back: one batch per call, the GPU evaluator's ``(N, obs)``), or torch
+        tensors in, a tensor on :attr:`device` out."""
         batch = next(iter(obs.values())).shape[0]
-        td = TensorDict({k: torch.as_tensor(np.asarray(v), dtype=torch.float32, device=self.device)
+        tensors = any(isinstance(v, torch.Tensor) for v in obs.values())
+        td = TensorDict({k: torch.as_tensor(v, dtype=torch.float32, device=self.device)
                          for k, v in obs.items() if k in self.obs_spec}, batch_size=[batch])
-        action = self.actor(td, stochastic_output=not self.deterministic)
-        return action.clamp(-1.0, 1.0).cpu().numpy()
+        action = self.actor(td, stochastic_output=not self.deterministic).clamp(-1.0, 1.0)
+        return action if tensors else action.cpu().numpy()

@@ -26,6 +26,7 @@ import trimesh
 
 from grt.policies.drawer_action import GRASP_ROT
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError
+from grt.tasks.batched import BatchedEpisodes, Objects, to_numpy
 from grt.tasks.drawer_env import HANDLE_ROT, MAX_OPENING, STATE_DIM, CabinetSpec, DrawerEnv
 
 __all__ = ["DrawerEnv", "DrawerSession", "HandleFitError", "handle_grasp_point"]
@@ -95,8 +96,8 @@ def check_handle(mesh: trimesh.Trimesh, grasp_point: np.ndarray, cabinet: Cabine
                              f"closes around at most {MAX_GRIP * 1000:.0f} mm: use a thinner grip, or check its units")
 
 
-class DrawerSession(EpisodeSession):
-    """Drawer-opening episodes of one policy on one handle at a time.
+class DrawerSession(BatchedEpisodes, EpisodeSession):
+    """Drawer-opening episodes of one policy on one handle at a time, or on ``num_envs`` sub-scenes at once.
 
     Args:
         policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` for a learning worker).
@@ -106,6 +107,8 @@ class DrawerSession(EpisodeSession):
         cabinet: :class:`grt.tasks.drawer_env.CabinetSpec` fields to override.
         env_id: the registered ManiSkill env; env: further :class:`DrawerEnv` arguments.
         rebuild_each_trial: see :class:`grt.tasks.base.EpisodeSession`.
+        num_envs, sim_backend, render_backend, sim_config: ManiSkill's (``num_envs > 1`` needs
+            ``physx_cuda``; :mod:`grt.tasks.batched`); the evaluators set them, a task config need not.
     """
 
     num_actions = 9
@@ -119,8 +122,10 @@ class DrawerSession(EpisodeSession):
 
     def __init__(self, policy=None, handle_object: str = "drawer_handle", grasp_point=None, max_steps: int = 500,
                  cabinet: dict | None = None, env_id: str = "GRT-Drawer-v1", env: dict | None = None,
-                 rebuild_each_trial: bool = True):
+                 rebuild_each_trial: bool = True, num_envs: int = 1, sim_backend: str = "physx_cpu",
+                 render_backend: str = "cpu", sim_config: dict | None = None):
         super().__init__(policy, max_steps, rebuild_each_trial)
+        self.num_envs = int(num_envs)
         from grt.geometry.mesh import load_mesh
 
         self.grasp_point = handle_grasp_point(str(handle_object), grasp_point)
@@ -128,9 +133,9 @@ class DrawerSession(EpisodeSession):
         check_handle(load_mesh(handle_object), self.grasp_point, self.cabinet, "the nominal handle")
         self.obs_spec = self.observation_spec()
         self._check_policy()
-        self.env = gym.make(env_id, obs_mode="none", sim_backend="physx_cpu", render_backend="cpu",
-                            reward_mode="dense", grasp_point=tuple(self.grasp_point), cabinet=dict(cabinet or {}),
-                            **(env or {}))
+        self.env = gym.make(env_id, obs_mode="none", num_envs=self.num_envs, sim_backend=sim_backend,
+                            render_backend=render_backend, sim_config=dict(sim_config or {}), reward_mode="dense",
+                            grasp_point=tuple(self.grasp_point), cabinet=dict(cabinet or {}), **(env or {}))
         self.unwrapped: DrawerEnv = self.env.unwrapped
         self._object_changed = True
         gc.collect()
@@ -147,27 +152,32 @@ class DrawerSession(EpisodeSession):
         check_handle(load_mesh(handle_object), point, spec, "the nominal handle")
         check_handle(mesh, point, spec)
 
-    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        self.unwrapped.set_object(mesh, parts)
+    def load_objects(self, objects: Objects, assignment) -> None:
+        self.unwrapped.set_objects(objects, list(assignment))
         self._object_changed = True
 
-    # --- EpisodeSession hooks ------------------------------------------------------------------------
-    def _reset_env(self, seed: int, rebuild: bool) -> None:
-        self.env.reset(seed=seed, options=dict(reconfigure=rebuild or self._object_changed))
+    # --- BatchedEpisodes hooks -----------------------------------------------------------------------
+    def _reset_batch(self, seeds, rebuild: bool) -> None:
+        self.env.reset(seed=[int(s) for s in seeds], options=dict(reconfigure=rebuild or self._object_changed))
         self._object_changed = False
-        self._held = self._reached = False
+        self._held = np.zeros(self.num_envs, bool)
+        self._reached = np.zeros(self.num_envs, bool)
 
-    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
-        _, reward, _, _, info = self.env.step(action)
-        state = {k: float(info[k][0]) for k in ("opening", "drawer_vel", "tcp_to_grasp", "finger_width")}
-        state["holding"] = bool(info["holding"][0])
-        self._held |= state["holding"]
-        self._reached |= state["tcp_to_grasp"] < 0.03
-        state.update(ever_held=self._held, reached=self._reached)
-        return float(reward[0]), bool(info["success"][0]), state
+    def _step_batch(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        _, reward, _, _, info = self.env.step(actions)
+        state = {k: to_numpy(info[k]).astype(np.float64) for k in ("opening", "drawer_vel", "tcp_to_grasp",
+                                                                   "finger_width")}
+        state["holding"] = to_numpy(info["holding"]).astype(bool)
+        self._held = self._held | state["holding"]
+        self._reached = self._reached | (state["tcp_to_grasp"] < 0.03)
+        state.update(ever_held=self._held.copy(), reached=self._reached.copy())
+        return to_numpy(reward), to_numpy(info["success"]).astype(bool), state
 
-    def observe(self) -> dict[str, np.ndarray]:
+    def observe_batch(self) -> dict[str, np.ndarray]:
         return self.unwrapped.task_obs()
+
+    def hull_tally(self) -> dict:
+        return dict(self.unwrapped.hull_tally)
 
     def score(self, success: bool, info: dict) -> float:
         return float(info["opening"])
@@ -183,7 +193,10 @@ class DrawerSession(EpisodeSession):
             return "missed_handle"
         return "timeout"
 
-    def _check(self, info: dict) -> None:
-        super()._check(info)
-        if not -0.01 <= info["opening"] <= MAX_OPENING + 0.01:
-            raise RuntimeError(f"the drawer left its slide (opening {info['opening']:.3f} m)")
+    def check_batch(self, info: dict[str, np.ndarray]) -> list[str | None]:
+        errors = super().check_batch(info)
+        opening = info["opening"]
+        for i in np.flatnonzero((opening < -0.01) | (opening > MAX_OPENING + 0.01)):
+            if errors[i] is None:
+                errors[i] = f"RuntimeError: the drawer left its slide (opening {opening[i]:.3f} m)"
+        return errors

@@ -26,6 +26,10 @@ rest pose plus uniform ±0.25 rad noise (paper), fingers open.
 memory, attached to the drawer link with the mounting plane (handle frame ``z = 0``) on the drawer
 front, the handle's ``x`` along the drawer's width and its ``y`` vertical. Swap it with
 :meth:`DrawerEnv.set_object` then ``reset(options={"reconfigure": True})``.
+
+**Parallel sub-scenes** (``num_envs > 1``, ``physx_cuda``). Sub-scene ``i``'s cabinet carries its own handle
+(:meth:`DrawerEnv.set_objects`: one articulation per sub-scene, then ``Articulation.merge``) and runs the
+episode of its own seed, drawn as with one env; states and observations are ``(num_envs, ...)`` arrays.
 """
 
 from __future__ import annotations
@@ -44,11 +48,13 @@ from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.building.ground import build_ground
 from mani_skill.utils.registration import register_env
+from mani_skill.utils.structs.articulation import Articulation
 from sapien import physx
 
 from grt.policies.drawer_action import APPROACH, ARM_DELTA, FINGER_DELTA, GRASP_ROT
+from grt.tasks.batched import to_numpy
 from grt.tasks.env_base import TaskEnv
-from grt.tasks.scene import attach_convex_parts, render_mesh_shape
+from grt.tasks.scene import CPU_INFLATION, GPU_INFLATION, attach_convex_parts, new_tally, render_mesh_shape
 
 STATE_DIM = 23
 MAX_OPENING = 0.39    # m (paper)
@@ -194,17 +200,43 @@ class DrawerEnv(TaskEnv):
         return CameraConfig("render_camera", pose, 512, 512, 0.9, 0.01, 10)
 
     def set_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        """The next handle (meters, handle frame: mounting plane z = 0) and its convex parts ``(K, 3)``."""
-        if len(parts) == 0:
+        """The next handle of every sub-scene (meters, handle frame: mounting plane z = 0) and its convex parts."""
+        self.set_objects([(mesh, parts)])
+
+    def set_objects(self, objects: list[tuple[trimesh.Trimesh, list[np.ndarray]]],
+                    assignment: list[int] | None = None) -> None:
+        """The next handles: sub-scene ``i`` holds ``objects[assignment[i]]`` (``None``: every one the first);
+        takes effect at the next reconfigure."""
+        if any(len(parts) == 0 for _, parts in objects):
             raise ValueError("a handle needs at least one convex collision part")
-        self.handle_mesh = mesh
-        self.handle_parts = [np.asarray(p, np.float64).reshape(-1, 3) for p in parts]
+        self.handle_meshes = [mesh for mesh, _ in objects]
+        self.handle_parts_of = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
+        self.handle_mesh, self.handle_parts = self.handle_meshes[0], self.handle_parts_of[0]  # the first handle
+        self._assignment = None if assignment is None else np.asarray(assignment, np.int64)
+
+    def object_of_env(self) -> np.ndarray:
+        """``(num_envs,)`` index of each sub-scene's handle in the objects given to :meth:`set_objects`."""
+        if self._assignment is None:
+            return np.zeros(self.num_envs, np.int64)
+        if len(self._assignment) != self.num_envs:
+            raise ValueError(f"set_objects gave {len(self._assignment)} sub-scene assignments for "
+                             f"{self.num_envs} sub-scenes")
+        return self._assignment
 
     # ------------------------------------------------------------------ scene
     def _load_scene(self, options: dict):
         self.ground = build_ground(self.scene)
-        self.cabinet_art, self.num_handle_shapes = build_cabinet(
-            self.scene, self.cabinet, self.handle_mesh, self.handle_parts, self.handle_friction, self.handle_density)
+        cabinets, shapes, self.hull_tally = [], [], new_tally()
+        for i, j in enumerate(self.object_of_env()):
+            art, built = build_cabinet(self.scene, self.cabinet, self.handle_meshes[j], self.handle_parts_of[j],
+                                       self.handle_friction, self.handle_density, scene_idxs=[i], name=f"cabinet_{i}",
+                                       tally=self.hull_tally)
+            self.remove_from_state_dict_registry(art)
+            cabinets.append(art)
+            shapes.append(built)
+        self.cabinet_art = Articulation.merge(cabinets, name="cabinet", merge_links=True)
+        self.add_to_state_dict_registry(self.cabinet_art)
+        self.num_handle_shapes = min(shapes)
         self.drawer_link = self.cabinet_art.links[1]
         self.drawer_joint = self.cabinet_art.active_joints[0]
         self.drawer_joint.set_friction(self.cabinet.friction)
@@ -213,54 +245,71 @@ class DrawerEnv(TaskEnv):
         from grt.tasks.motion import PandaIK
 
         robot = self.agent.robot
-        self._ik = PandaIK(robot)
+        self._ik = PandaIK(robot, base=self.robot_root())
         if self.rest_qpos is None:
             self.rest_qpos = rest_qpos(self._ik, self.cabinet, self.grasp_point)
         self._finger_links = [robot.links_map["panda_leftfinger"], robot.links_map["panda_rightfinger"]]
 
     # ------------------------------------------------------------------ episodes
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
-        rng = np.random.default_rng(int(self._episode_seed[0]))
-        q = self.rest_qpos.copy()
-        q[:7] += rng.uniform(-self.qpos_noise, self.qpos_noise, 7)
-        limits = np.asarray(self.agent.robot.get_qlimits()[0].numpy(), np.float64)
-        q = np.clip(q, limits[:, 0], limits[:, 1])
-        self.agent.reset(torch.as_tensor(q, dtype=torch.float32)[None])
+        limits = np.asarray(to_numpy(self.agent.robot.get_qlimits())[0], np.float64)
+        qs = []
+        for seed in self._episode_seed:  # each sub-scene's draws as one env's episode with its seed
+            rng = np.random.default_rng(int(seed))
+            q = self.rest_qpos.copy()
+            q[:7] += rng.uniform(-self.qpos_noise, self.qpos_noise, 7)
+            qs.append(np.clip(q, limits[:, 0], limits[:, 1]))
+        self.agent.reset(torch.as_tensor(np.stack(qs), dtype=torch.float32, device=self.device))
         self.agent.controller.reset()  # the accumulated joint targets start at the new configuration
-        self.cabinet_art.set_qpos(torch.zeros((1, 1)))
-        self.cabinet_art.set_qvel(torch.zeros((1, 1)))
-        self.start_info = dict(qpos_noise=(q[:7] - self.rest_qpos[:7]).round(4).tolist())
+        self.cabinet_art.set_qpos(torch.zeros((self.num_envs, 1), device=self.device))
+        self.cabinet_art.set_qvel(torch.zeros((self.num_envs, 1), device=self.device))
 
     # ------------------------------------------------------------------ state, success, reward
-    def opening(self) -> float:
-        return float(self.cabinet_art.get_qpos()[0, 0])
+    def openings(self) -> np.ndarray:
+        """``(N,)`` drawer openings (m)."""
+        return to_numpy(self.cabinet_art.get_qpos()[:, 0]).astype(np.float64)
 
-    def grasp_world(self) -> np.ndarray:
-        """World position (m) of the nominal handle's grasp point (moves with the drawer)."""
+    def opening(self) -> float:
+        """Sub-scene 0's drawer opening (m)."""
+        return float(self.openings()[0])
+
+    def grasp_worlds(self) -> np.ndarray:
+        """``(N, 3)`` world positions (m) of the nominal handle's grasp point (moving with each drawer)."""
         pose = self.cabinet.handle_pose()
         local = pose[:3, :3] @ self.grasp_point + pose[:3, 3]
-        return local + np.array([-self.opening(), 0.0, 0.0])
+        shift = np.zeros((self.num_envs, 3))
+        shift[:, 0] = -self.openings()
+        return local + shift
 
-    def finger_contacts(self) -> tuple[float, float]:
-        """Contact force magnitudes (N) between each finger and the drawer link (handle and front)."""
-        forces = [self.scene.get_pairwise_contact_forces(link, self.drawer_link)[0].norm().item()
+    def grasp_world(self) -> np.ndarray:
+        """Sub-scene 0's grasp point (m, world)."""
+        return self.grasp_worlds()[0]
+
+    def finger_contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(N,)`` contact force magnitudes (N) between each finger and the drawer link (handle and front)."""
+        forces = [to_numpy(torch.linalg.vector_norm(self.scene.get_pairwise_contact_forces(link, self.drawer_link),
+                                                    dim=-1)).astype(np.float64)
                   for link in self._finger_links]
-        return float(forces[0]), float(forces[1])
+        return forces[0], forces[1]
 
-    def drawer_state(self) -> dict:
-        tcp = self.tcp_pose()
+    def drawer_state(self) -> dict[str, np.ndarray]:
+        """The drawer and the hand, ``(N,)`` each: opening (m), its velocity, TCP to grasp point (m), ..."""
+        tcp = self.tcp_poses()
         left, right = self.finger_contacts()
-        return dict(opening=self.opening(), drawer_vel=float(self.cabinet_art.get_qvel()[0, 0]),
-                    tcp_to_grasp=float(np.linalg.norm(self.grasp_world() - tcp[:3, 3])),
-                    finger_width=float(self.agent.robot.get_qpos()[0, 7:9].sum()),
-                    holding=bool(left > 0.5 and right > 0.5), touching=bool(left > 0.0 or right > 0.0))
+        qpos = self.agent.robot.get_qpos()
+        to_grasp = self.grasp_worlds() - tcp[:, :3, 3]
+        return dict(opening=self.openings(), drawer_vel=to_numpy(self.cabinet_art.get_qvel()[:, 0]).astype(np.float64),
+                    tcp_to_grasp=np.sqrt(np.vecdot(to_grasp, to_grasp)),
+                    finger_width=to_numpy(qpos[:, 7:9].sum(dim=1)).astype(np.float64),
+                    holding=(left > 0.5) & (right > 0.5), touching=(left > 0.0) | (right > 0.0))
 
     def evaluate(self) -> dict:
         if not hasattr(self, "cabinet_art"):
-            return dict(success=torch.zeros(1, dtype=torch.bool))
+            return dict(success=torch.zeros(self.num_envs, dtype=torch.bool, device=self.device))
         s = self.drawer_state()
-        return dict(success=torch.tensor([s["opening"] >= self.success_opening]),
-                    **{k: torch.tensor([v]) for k, v in s.items()})
+        out = {k: torch.as_tensor(v, dtype=torch.bool if v.dtype == bool else torch.float32, device=self.device)
+               for k, v in s.items()}
+        return dict(success=torch.as_tensor(s["opening"] >= self.success_opening, device=self.device), **out)
 
     def compute_dense_reward(self, obs, action, info):
         """``0.1 x (-0.5 tanh(d / 0.1) - 2 (1 - opening / 0.39) + 0.25 holding + 10 success - 0.01 |a|^2)``.
@@ -272,22 +321,26 @@ class DrawerEnv(TaskEnv):
         """
         reach = -0.5 * torch.tanh(info["tcp_to_grasp"].float() / 0.1)
         closed = 1.0 - info["opening"].float() / MAX_OPENING
-        act = torch.as_tensor(action, dtype=torch.float32).reshape(1, -1)
+        act = torch.as_tensor(action, dtype=torch.float32, device=self.device).reshape(self.num_envs, -1)
         return 0.1 * (reach - 2.0 * closed + 0.25 * info["holding"].float() + 10.0 * info["success"].float()
                       - 0.01 * (act ** 2).sum(-1))
 
     def task_obs(self) -> dict[str, np.ndarray]:
-        """The policy's observation (see the module docstring): ``state`` (23,)."""
+        """The policy's observation (see the module docstring), batched: ``state`` (N, 23)."""
         robot = self.agent.robot
-        qpos, qvel = robot.get_qpos()[0].numpy(), robot.get_qvel()[0].numpy()
-        to_grasp = self.grasp_world() - self.tcp_pose()[:3, 3]
-        drawer = [self.opening(), float(self.cabinet_art.get_qvel()[0, 0])]
-        return {"state": np.concatenate([qpos, 0.1 * qvel, to_grasp, drawer]).astype(np.float32)}
+        qpos, qvel = to_numpy(robot.get_qpos()), to_numpy(robot.get_qvel())
+        to_grasp = self.grasp_worlds() - self.tcp_poses()[:, :3, 3]
+        drawer = np.stack([self.openings(), to_numpy(self.cabinet_art.get_qvel()[:, 0]).astype(np.float64)], axis=1)
+        return {"state": np.concatenate([qpos, 0.1 * qvel, to_grasp, drawer], axis=1).astype(np.float32)}
 
 
 def build_cabinet(scene, spec: CabinetSpec, handle: trimesh.Trimesh, parts: list[np.ndarray],
-                  handle_friction: float = 1.0, handle_density: float = 2000.0):
+                  handle_friction: float = 1.0, handle_density: float = 2000.0, scene_idxs: list[int] | None = None,
+                  name: str = "cabinet", tally: dict | None = None):
     """Build the cabinet articulation (fixed body, one prismatic drawer carrying the handle).
+
+    ``scene_idxs``: the parallel sub-scenes to build it in (``None``: all); ``name``: the articulation's;
+    ``tally``: a :func:`grt.tasks.scene.new_tally` record of the handle's hulls.
 
     Returns:
         ``(articulation, number of handle collision shapes built)``.
@@ -297,6 +350,8 @@ def build_cabinet(scene, spec: CabinetSpec, handle: trimesh.Trimesh, parts: list
     """
     builder = scene.create_articulation_builder()
     builder.initial_pose = sapien.Pose()
+    if scene_idxs is not None:
+        builder.set_scene_idxs(list(scene_idxs))
     wood = physx.PhysxMaterial(static_friction=0.5, dynamic_friction=0.5, restitution=0.0)
     body_boxes, drawer_boxes = cabinet_boxes(spec)
     body = builder.create_link_builder()
@@ -320,7 +375,8 @@ def build_cabinet(scene, spec: CabinetSpec, handle: trimesh.Trimesh, parts: list
 
     def build_with_handle(link_parent=None):
         component = base_build(link_parent)
-        counted["n"] = attach_convex_parts(component, posed, metal, handle_density, drawer.collision_groups)
+        counted["n"] = attach_convex_parts(component, posed, metal, handle_density, drawer.collision_groups,
+                                           GPU_INFLATION if scene.gpu_sim_enabled else CPU_INFLATION, tally)
         return component
 
     drawer.build_physx_component = build_with_handle
@@ -343,7 +399,7 @@ def build_cabinet(scene, spec: CabinetSpec, handle: trimesh.Trimesh, parts: list
     drawer.set_joint_name("drawer_slide")
     drawer.set_joint_properties("prismatic", limits=[[0.0, MAX_OPENING]], pose_in_parent=turn,
                                 pose_in_child=turn, friction=spec.friction, damping=spec.damping)
-    art = builder.build(name="cabinet", fix_root_link=True)
+    art = builder.build(name=name, fix_root_link=True)
     if counted["n"] != len(parts):
         raise ValueError(f"only {counted['n']} of {len(parts)} handle collision parts were built")
     return art, counted["n"]

@@ -44,6 +44,17 @@ class TaskEnv(BaseEnv):
         reward = self.compute_dense_reward(obs, action, info)
         return reward if self.max_dense_reward == 1.0 else reward / self.max_dense_reward
 
+    def robot_root(self) -> sapien.Pose | None:
+        """The robot's root pose for IK (:class:`grt.tasks.motion.PandaIK`): ``None`` on the CPU, where the
+        solver reads the simulator's (its float noise included, as every CPU episode so far), the configured
+        base on the GPU, whose simulation gives no per-object CPU poses."""
+        return sapien.Pose(p=list(self.robot_base)) if self.gpu_sim_enabled else None
+
+    def tcp_poses(self) -> np.ndarray:
+        """``(num_envs, 4, 4)`` world poses of the robots' TCPs (m), float64 on the host."""
+        pose = self.agent.tcp.pose.to_transformation_matrix()
+        return pose.detach().cpu().numpy().astype(np.float64)
+
     def tcp_pose(self) -> np.ndarray:
-        """``(4, 4)`` world pose of the robot's TCP (m)."""
-        return self.agent.tcp.pose.to_transformation_matrix()[0].numpy().astype(np.float64)
+        """``(4, 4)`` world pose of sub-scene 0's TCP (m)."""
+        return self.tcp_poses()[0]

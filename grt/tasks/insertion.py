@@ -24,6 +24,7 @@ import numpy as np
 import trimesh
 
 from grt.tasks.base import COMMON_MODES, EpisodeSession
+from grt.tasks.batched import BatchedEpisodes, Objects, to_numpy
 from grt.tasks.insertion_env import GRIP_DIM, STATE_DIM, InsertEnv  # registers GRT-Insert-v1
 from grt.tasks.socket import PlugFitError, build_socket, grip_half_width
 
@@ -83,8 +84,8 @@ def check_tip(mesh: trimesh.Trimesh, what: str = "the plug") -> None:
                            f"mesh.apply_translation([0, 0, {-tip:.4f}])) and export it again")
 
 
-class InsertionSession(EpisodeSession):
-    """Insertion episodes of one policy on one plug at a time.
+class InsertionSession(BatchedEpisodes, EpisodeSession):
+    """Insertion episodes of one policy on one plug at a time, or on ``num_envs`` sub-scenes at once.
 
     Args:
         policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` for a learning worker).
@@ -96,6 +97,8 @@ class InsertionSession(EpisodeSession):
         cloud_points: points in the ``cloud`` observation (paper: 500; 0 for state-only policies).
         env_id: the registered ManiSkill env; env: further :class:`InsertEnv` arguments.
         rebuild_each_trial: see :class:`grt.tasks.base.EpisodeSession`.
+        num_envs, sim_backend, render_backend, sim_config: ManiSkill's (``num_envs > 1`` needs
+            ``physx_cuda``; :mod:`grt.tasks.batched`); the evaluators set them, a task config need not.
     """
 
     num_actions = 6
@@ -109,8 +112,10 @@ class InsertionSession(EpisodeSession):
     def __init__(self, policy=None, socket_object: str = "usb_plug", head_length: float | None = None,
                  grip_height: float | None = None, clearance: float = 0.0004, chamfer: float = 0.0015,
                  max_steps: int = 256, cloud_points: int = 500, env_id: str = "GRT-Insert-v1",
-                 env: dict | None = None, rebuild_each_trial: bool = True):
+                 env: dict | None = None, rebuild_each_trial: bool = True, num_envs: int = 1,
+                 sim_backend: str = "physx_cpu", render_backend: str = "cpu", sim_config: dict | None = None):
         super().__init__(policy, max_steps, rebuild_each_trial)
+        self.num_envs = int(num_envs)
         from grt.geometry.mesh import load_mesh
 
         self.head_length, self.grip_height = plug_geometry(str(socket_object), head_length, grip_height)
@@ -120,10 +125,10 @@ class InsertionSession(EpisodeSession):
         self.socket = build_socket(nominal, self.head_length, clearance=clearance, chamfer=chamfer)
         self.obs_spec = self.observation_spec(cloud_points=cloud_points)
         self._check_policy()
-        self.env = gym.make(env_id, obs_mode="none", sim_backend="physx_cpu", render_backend="cpu",
-                            reward_mode="dense", head_length=self.head_length,
-                            grip_height=self.grip_height, cloud_points=int(cloud_points), plug=nominal,
-                            **(env or {}))
+        self.env = gym.make(env_id, obs_mode="none", num_envs=self.num_envs, sim_backend=sim_backend,
+                            render_backend=render_backend, sim_config=dict(sim_config or {}), reward_mode="dense",
+                            head_length=self.head_length, grip_height=self.grip_height,
+                            cloud_points=int(cloud_points), plug=nominal, **(env or {}))
         self.unwrapped: InsertEnv = self.env.unwrapped
         self.unwrapped.set_socket(self.socket)
         self._object_changed = True
@@ -154,28 +159,42 @@ class InsertionSession(EpisodeSession):
             raise PlugFitError(f"the plug's head is {2 * socket.outer_radius * 1000:.0f} mm across: too big for a "
                                "tabletop socket; is the mesh in meters (object_scale) and head_length right?")
 
-    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        _check_grip(mesh, self.grip_height)
-        self.unwrapped.set_object(mesh, parts)
+    @classmethod
+    def check_candidate(cls, mesh: trimesh.Trimesh, socket_object: str = "usb_plug", head_length: float | None = None,
+                        grip_height: float | None = None, **_) -> None:
+        """The check :meth:`load_objects` makes: the plug's grip fits the gripper."""
+        _check_grip(mesh, plug_geometry(str(socket_object), head_length, grip_height)[1])
+
+    def load_objects(self, objects: Objects, assignment) -> None:
+        for mesh, _ in objects:
+            _check_grip(mesh, self.grip_height)
+        self.unwrapped.set_objects(objects, list(assignment))
         self._object_changed = True
 
-    # --- EpisodeSession hooks ------------------------------------------------------------------------
-    def _reset_env(self, seed: int, rebuild: bool) -> None:
-        self.env.reset(seed=seed, options=dict(reconfigure=rebuild or self._object_changed))
+    # --- BatchedEpisodes hooks -----------------------------------------------------------------------
+    def _reset_batch(self, seeds, rebuild: bool) -> None:
+        self.env.reset(seed=[int(s) for s in seeds], options=dict(reconfigure=rebuild or self._object_changed))
         self._object_changed = False
-        self._touched = False
+        self._touched = np.zeros(self.num_envs, bool)
 
-    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
-        _, reward, _, _, info = self.env.step(action)
-        state = {k: float(info[k][0]) for k in ("tip_to_floor", "tip_off_axis", "keypoint_error", "grip_offset",
-                                                "tilt_deg")}
-        state["pinched"] = bool(info["pinched"][0])
-        self._touched |= state["tip_to_floor"] < self.socket.depth + 0.002 and state["tip_off_axis"] < 0.01
-        state["touched_socket"] = self._touched
-        return float(reward[0]), bool(info["success"][0]), state
+    def start_errors(self) -> list[str | None]:
+        return list(self.unwrapped.start_errors)
 
-    def observe(self) -> dict[str, np.ndarray]:
+    def _step_batch(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        _, reward, _, _, info = self.env.step(actions)
+        state = {k: to_numpy(info[k]).astype(np.float64) for k in ("tip_to_floor", "tip_off_axis", "keypoint_error",
+                                                                   "grip_offset", "tilt_deg")}
+        state["pinched"] = to_numpy(info["pinched"]).astype(bool)
+        self._touched = self._touched | ((state["tip_to_floor"] < self.socket.depth + 0.002)
+                                         & (state["tip_off_axis"] < 0.01))
+        state["touched_socket"] = self._touched.copy()
+        return to_numpy(reward), to_numpy(info["success"]).astype(bool), state
+
+    def observe_batch(self) -> dict[str, np.ndarray]:
         return self.unwrapped.task_obs()
+
+    def hull_tally(self) -> dict:
+        return dict(self.unwrapped.hull_tally)
 
     def judge(self, success: bool, info: dict) -> str:
         if success:
@@ -188,10 +207,12 @@ class InsertionSession(EpisodeSession):
             return "misaligned"
         return "timeout"
 
-    def hopeless(self, info: dict) -> bool:
+    def hopeless_batch(self, info: dict[str, np.ndarray]) -> np.ndarray:
         return info["grip_offset"] > 0.015  # the plug left the fingers: it cannot be inserted any more
 
-    def _check(self, info: dict) -> None:
-        super()._check(info)
-        if info["grip_offset"] > 0.5:
-            raise RuntimeError(f"the plug ran away ({info['grip_offset']:.2f} m from the hand)")
+    def check_batch(self, info: dict[str, np.ndarray]) -> list[str | None]:
+        errors = super().check_batch(info)
+        for i in np.flatnonzero(info["grip_offset"] > 0.5):
+            if errors[i] is None:
+                errors[i] = f"RuntimeError: the plug ran away ({info['grip_offset'][i]:.2f} m from the hand)"
+        return errors

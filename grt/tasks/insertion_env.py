@@ -30,6 +30,13 @@ and within 2 mm of the hole's axis. An episode ends at success or after ``max_ep
 **Deformable object.** The plug: visual = the candidate mesh, collision = its convex parts, from
 memory. The socket is built once from the *nominal* plug (``set_socket``) and never deformed. Swap
 the plug with :meth:`InsertEnv.set_object` then ``reset(options={"reconfigure": True})``.
+
+**Parallel sub-scenes** (``num_envs > 1``, ``physx_cuda``). Sub-scene ``i`` holds its own plug
+(:meth:`InsertEnv.set_objects`: per-sub-scene builders, then ``Actor.merge``, as ManiSkill's
+``pick_single_ycb.py``) and runs the episode of its own seed (``reset(seed=[...])``): every randomization is
+drawn from ``numpy.random.default_rng(seed)`` exactly as with one env, so sub-scene ``i`` starts where the
+one-env episode with that seed starts. States, observations and flags are ``(num_envs, ...)`` arrays,
+computed in float64 on the host as for one env (so the CPU episodes stay bit for bit what they were).
 """
 
 from __future__ import annotations
@@ -45,13 +52,15 @@ from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils import sapien_utils
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.scene_builder.table import TableSceneBuilder
+from mani_skill.utils.structs.actor import Actor
 from mani_skill.utils.structs.pose import Pose
 from sapien import physx
 from scipy.spatial.transform import Rotation
 
+from grt.tasks.batched import to_numpy
 from grt.tasks.env_base import TaskEnv
 from grt.tasks.motion import PandaIK
-from grt.tasks.scene import InMemoryActorBuilder, build_object_actor
+from grt.tasks.scene import InMemoryActorBuilder, build_object_actor, new_tally
 from grt.tasks.socket import SocketGeometry, build_socket, grip_half_width
 
 ACTION_SCALE = 0.01  # m and rad per unit action (paper: delta pose scaled by 0.01)
@@ -118,7 +127,7 @@ def farthest_points(points: np.ndarray, k: int) -> np.ndarray:
 
 @register_env("GRT-Insert-v1", max_episode_steps=256)
 class InsertEnv(TaskEnv):
-    """Panda + table + socket + one in-memory plug. See the module docstring.
+    """Panda + table + socket + one in-memory plug per sub-scene. See the module docstring.
 
     Args:
         head_length: length (m) of the plug's connector (from its tip at z = 0).
@@ -153,6 +162,7 @@ class InsertEnv(TaskEnv):
         self.cloud_points = int(cloud_points)
         self._sim_freq, self._control_freq = int(sim_freq), int(control_freq)
         self._ik: PandaIK | None = None
+        self._arm_starts: dict[int, np.ndarray | None] = {}  # seed -> IK solution of its start pose
         if plug is None:
             plug, parts = default_plug(self.head_length)
         else:  # the session's nominal plug: the built-in one may have no surface at a user's grip height
@@ -173,13 +183,31 @@ class InsertEnv(TaskEnv):
         self.socket = socket
 
     def set_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        """The next plug (meters, tip at z = 0, connector down) and its convex parts ``(K, 3)``."""
-        if len(parts) == 0:
+        """The next plug of every sub-scene (meters, tip at z = 0, connector down) and its convex parts ``(K, 3)``."""
+        self.set_objects([(mesh, parts)])
+
+    def set_objects(self, objects: list[tuple[trimesh.Trimesh, list[np.ndarray]]],
+                    assignment: list[int] | None = None) -> None:
+        """The next plugs: sub-scene ``i`` holds ``objects[assignment[i]]`` (``None``: every one the first);
+        takes effect at the next reconfigure."""
+        if any(len(parts) == 0 for _, parts in objects):
             raise ValueError("a plug needs at least one convex collision part")
-        self.plug_mesh = mesh
-        self.plug_parts = [np.asarray(p, np.float64).reshape(-1, 3) for p in parts]
-        self._plug_cloud = self._surface_cloud(mesh, self.cloud_points // 2, seed=1)
-        self._grip_half_width = grip_half_width(mesh, self.grip_height)
+        self.plug_meshes = [mesh for mesh, _ in objects]
+        self.plug_parts_of = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
+        self.plug_mesh, self.plug_parts = self.plug_meshes[0], self.plug_parts_of[0]  # the first (one env: the) plug
+        self._plug_clouds = np.stack([self._surface_cloud(mesh, self.cloud_points // 2, seed=1)
+                                      for mesh in self.plug_meshes])
+        self._grip_half_widths = np.array([grip_half_width(mesh, self.grip_height) for mesh in self.plug_meshes])
+        self._assignment = None if assignment is None else np.asarray(assignment, np.int64)
+
+    def object_of_env(self) -> np.ndarray:
+        """``(num_envs,)`` index of each sub-scene's plug in the objects given to :meth:`set_objects`."""
+        if self._assignment is None:
+            return np.zeros(self.num_envs, np.int64)
+        if len(self._assignment) != self.num_envs:
+            raise ValueError(f"set_objects gave {len(self._assignment)} sub-scene assignments for "
+                             f"{self.num_envs} sub-scenes")
+        return self._assignment
 
     def _surface_cloud(self, mesh: trimesh.Trimesh, k: int, seed: int) -> np.ndarray:
         if k <= 0:
@@ -192,7 +220,8 @@ class InsertEnv(TaskEnv):
         self.table_scene = TableSceneBuilder(self, robot_init_qpos_noise=0.0)
         self.table_scene.build()
         material = physx.PhysxMaterial(static_friction=0.5, dynamic_friction=0.5, restitution=0.0)
-        builder = InMemoryActorBuilder(self.socket.parts, material, density=1000.0)
+        self.hull_tally = new_tally()
+        builder = InMemoryActorBuilder(self.socket.parts, material, density=1000.0, tally=self.hull_tally)
         builder.set_scene(self.scene)
         if self.scene.can_render():
             m = self.socket.mesh
@@ -202,42 +231,63 @@ class InsertEnv(TaskEnv):
                 sapien.render.RenderMaterial(base_color=(0.3, 0.3, 0.35, 1.0))))
         builder.initial_pose = sapien.Pose(p=[0.0, 0.0, 0.02])
         self.socket_actor = builder.build_kinematic(name="grt_socket")
-        self.plug = build_object_actor(self.scene, self.plug_mesh, self.plug_parts, "grt_plug",
-                                       friction=self.plug_friction, density=self.plug_density,
-                                       initial_z=0.3)
+        self._env_object = self.object_of_env()
+        plugs = [build_object_actor(self.scene, self.plug_meshes[j], self.plug_parts_of[j], f"grt_plug_{i}",
+                                    friction=self.plug_friction, density=self.plug_density, initial_z=0.3,
+                                    scene_idxs=[i], tally=self.hull_tally)
+                 for i, j in enumerate(self._env_object)]
+        for actor in plugs:
+            self.remove_from_state_dict_registry(actor)
+        self.plug = Actor.merge(plugs, name="grt_plug")
+        self.add_to_state_dict_registry(self.plug)
         self._socket_cloud = self._surface_cloud(self.socket.mesh, self.cloud_points - self.cloud_points // 2,
                                                  seed=2)
-
-    def _after_reconfigure(self, options: dict):
-        robot = self.agent.robot
-        self._ik = PandaIK(robot)
-        self._fingers = [j for j in robot.get_active_joints() if "finger" in j.name]
+        # the fingers hold the plug by force (PD, limited); set before the GPU simulation starts
+        self._fingers = [j for j in self.agent.robot.get_active_joints() if "finger" in j.name]
         for joint in self._fingers:
             joint.set_drive_properties(stiffness=1e3, damping=1e2, force_limit=100)
 
+    def _after_reconfigure(self, options: dict):
+        self._ik = PandaIK(self.agent.robot, base=self.robot_root())
+
     # ------------------------------------------------------------------ episodes
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
-        rng = np.random.default_rng(int(self._episode_seed[0]))
+        starts = [self._episode_start(int(seed)) for seed in self._episode_seed]
+        self.start_errors = [start.pop("error") for start in starts]
+        stack = {k: np.stack([start[k] for start in starts]) for k in starts[0]}
+        self.socket_world, self.target_tcp = stack["socket_world"], stack["target_tcp"]
+        self._target_obs_pq = stack["target_obs_pq"]
+        q = stack["qpos"]
+        q[:, 7:] = self._grip_half_widths[self._env_object][:, None]
+        self.socket_actor.set_pose(_poses(stack["socket_world"], self.device))
+        self.agent.reset(torch.as_tensor(q, dtype=torch.float32, device=self.device))
+        for joint in self._fingers:
+            joint.set_drive_target(-0.01)
+        self.plug.set_pose(_poses(stack["plug_start"], self.device))
+        self.plug.set_linear_velocity(torch.zeros((self.num_envs, 3), device=self.device))
+        self.plug.set_angular_velocity(torch.zeros((self.num_envs, 3), device=self.device))
+
+    def _episode_start(self, seed: int) -> dict:
+        """One episode's seeded start (the draws of ``numpy.random.default_rng(seed)``, in the one-env order):
+        socket and target poses, the plug's start pose and the arm's joints there; ``error`` when the start
+        pose has no IK solution (the arm then starts at rest, and the trial is a ``sim_error``)."""
+        rng = np.random.default_rng(seed)
         sock = self.socket
         xy = rng.uniform(-self.socket_xy_range, self.socket_xy_range, 2)
         top = 0.02 + rng.uniform(*self.socket_z_range)
         yaw = rng.uniform(-self.socket_yaw_range, self.socket_yaw_range)
         # The socket frame: origin at the hole's axis on the top face; the hole center is the plug's axis.
         socket_world = pose_matrix(rot_z(yaw), [xy[0], xy[1], top])
-        self.socket_actor.set_pose(Pose.create(sapien.Pose(socket_world.astype(np.float32))))
         axis = np.r_[sock.center, 0.0]  # plug-frame XY of the head's axis
         tcp_in_plug = pose_matrix(TCP_IN_PLUG_ROT, [0.0, 0.0, self.grip_height])
         # Inserted: the plug's tip sits on the floor minus the margin, its axis on the hole's axis.
         plug_inserted = socket_world @ pose_matrix(np.eye(3), [0.0, 0.0, -self.head_length]
                                                    ) @ pose_matrix(np.eye(3), -axis)
-        self.target_tcp = plug_inserted @ tcp_in_plug
-        self.hole_floor = (socket_world @ np.r_[0.0, 0.0, -sock.depth, 1.0])[:3]
-        self.socket_world = socket_world
+        target_tcp = plug_inserted @ tcp_in_plug
         noise = np.r_[rng.uniform(-self.target_noise, self.target_noise, 2), 0.0]
-        self.target_obs = self.target_tcp.copy()
-        self.target_obs[:3, 3] += noise
-        t = sapien.Pose(self.target_obs.astype(np.float32))
-        self._target_obs_pq = np.concatenate([t.p, t.q]).astype(np.float32)
+        target_obs = target_tcp.copy()
+        target_obs[:3, 3] += noise
+        t = sapien.Pose(target_obs.astype(np.float32))
         # Start: the plug above the socket, tip 10-25 mm over the top face.
         dxy = rng.uniform(-self.plug_xy_range, self.plug_xy_range, 2)
         height = rng.uniform(*self.plug_height_range)
@@ -245,56 +295,55 @@ class InsertEnv(TaskEnv):
         plug_start = pose_matrix(rot_z(plug_yaw), [xy[0] + dxy[0], xy[1] + dxy[1], top + height]
                                  ) @ pose_matrix(np.eye(3), -axis)
         tcp_start = plug_start @ tcp_in_plug
-        q = self._ik.solve(tcp_start, REST_QPOS)
+        if seed not in self._arm_starts:  # the same start pose for every plug: solved once per seed
+            self._arm_starts[seed] = self._ik.solve(tcp_start, REST_QPOS)
+        q, error = self._arm_starts[seed], None
         if q is None:
-            raise RuntimeError(f"no IK solution for the start pose {tcp_start[:3, 3].round(3).tolist()}")
-        half = self._grip_half_width
-        q = q.copy()
-        q[7:] = half
-        self.agent.reset(torch.as_tensor(q, dtype=torch.float32)[None])
-        for joint in self._fingers:
-            joint.set_drive_target(-0.01)
-        self.plug.set_pose(Pose.create(sapien.Pose(plug_start.astype(np.float32))))
-        self.plug.set_linear_velocity(torch.zeros((1, 3)))
-        self.plug.set_angular_velocity(torch.zeros((1, 3)))
-        self.start_info = dict(socket_xy=xy.round(4).tolist(), socket_top=round(top, 4), socket_yaw=round(yaw, 4),
-                               plug_dxy=dxy.round(4).tolist(), plug_height=round(height, 4),
-                               plug_yaw=round(plug_yaw, 4))
+            q = REST_QPOS
+            error = f"RuntimeError: no IK solution for the start pose {tcp_start[:3, 3].round(3).tolist()}"
+        return dict(socket_world=socket_world, target_tcp=target_tcp, plug_start=plug_start, qpos=q.copy(),
+                    target_obs_pq=np.concatenate([t.p, t.q]).astype(np.float32), error=error)
 
     # ------------------------------------------------------------------ state, success, reward
+    def plug_poses(self) -> np.ndarray:
+        """``(N, 4, 4)`` world poses of the plug frames (tip at their origin)."""
+        return to_numpy(self.plug.pose.to_transformation_matrix()).astype(np.float64)
+
     def plug_pose(self) -> np.ndarray:
-        """``(4, 4)`` world pose of the plug frame (tip at its origin)."""
-        return self.plug.pose.to_transformation_matrix()[0].numpy().astype(np.float64)
+        """``(4, 4)`` world pose of sub-scene 0's plug frame."""
+        return self.plug_poses()[0]
 
     def keypoints(self) -> tuple[np.ndarray, np.ndarray]:
-        """Plug keypoints and their targets ``(2, 3)`` each (m): the head's tip and its top, on its axis."""
+        """Plug keypoints and their targets ``(N, 2, 3)`` each (m): the head's tip and its top, on its axis."""
         axis = np.r_[self.socket.center, 0.0]
         local = np.stack([axis, axis + [0.0, 0.0, self.head_length]])
-        plug = self.plug_pose()
-        now = local @ plug[:3, :3].T + plug[:3, 3]
+        plug = self.plug_poses()
+        now = local @ np.swapaxes(plug[:, :3, :3], 1, 2) + plug[:, None, :3, 3]
         inserted = self.target_tcp @ np.linalg.inv(pose_matrix(TCP_IN_PLUG_ROT, [0.0, 0.0, self.grip_height]))
-        return now, local @ inserted[:3, :3].T + inserted[:3, 3]
+        return now, local @ np.swapaxes(inserted[:, :3, :3], 1, 2) + inserted[:, None, :3, 3]
 
-    def insertion_state(self) -> dict:
-        """Where the plug is relative to the hole (socket frame, m) and whether it is still held."""
+    def insertion_state(self) -> dict[str, np.ndarray]:
+        """Where each plug is relative to its hole (socket frame, m) and whether it is still held, ``(N,)`` each."""
         now, target = self.keypoints()
         inv = np.linalg.inv(self.socket_world)
-        tip = inv[:3, :3] @ now[0] + inv[:3, 3]
-        depth_to_floor = tip[2] + self.socket.depth
-        plug, tcp = self.plug_pose(), self.tcp_pose()
-        grip_point = plug[:3, :3] @ [0.0, 0.0, self.grip_height] + plug[:3, 3]
-        tilt = float(np.degrees(np.arccos(np.clip(plug[2, 2], -1.0, 1.0))))
-        return dict(tip_to_floor=float(depth_to_floor), tip_off_axis=float(np.linalg.norm(tip[:2])),
-                    keypoint_error=float(np.linalg.norm(now - target, axis=1).mean()),
-                    grip_offset=float(np.linalg.norm(grip_point - tcp[:3, 3])), tilt_deg=tilt,
-                    pinched=bool(self.agent.is_grasping(self.plug)[0]))
+        tip = (inv[:, :3, :3] @ now[:, 0, :, None])[..., 0] + inv[:, :3, 3]
+        depth_to_floor = tip[:, 2] + self.socket.depth
+        plug, tcp = self.plug_poses(), self.tcp_poses()
+        grip_point = (plug[:, :3, :3] @ np.array([[0.0], [0.0], [self.grip_height]]))[..., 0] + plug[:, :3, 3]
+        tilt = np.degrees(np.arccos(np.clip(plug[:, 2, 2], -1.0, 1.0)))
+        return dict(tip_to_floor=depth_to_floor, tip_off_axis=_norms(tip[:, :2]),
+                    keypoint_error=np.linalg.norm(now - target, axis=-1).mean(axis=-1),
+                    grip_offset=_norms(grip_point - tcp[:, :3, 3]), tilt_deg=tilt,
+                    pinched=to_numpy(self.agent.is_grasping(self.plug)).astype(bool))
 
     def evaluate(self) -> dict:
         if self.socket is None or not hasattr(self, "target_tcp"):
-            return dict(success=torch.zeros(1, dtype=torch.bool))
+            return dict(success=torch.zeros(self.num_envs, dtype=torch.bool, device=self.device))
         s = self.insertion_state()
-        success = s["tip_to_floor"] < 0.003 and s["tip_off_axis"] < 0.002
-        return dict(success=torch.tensor([success]), **{k: torch.tensor([v]) for k, v in s.items()})
+        success = (s["tip_to_floor"] < 0.003) & (s["tip_off_axis"] < 0.002)
+        out = {k: torch.as_tensor(v, dtype=torch.bool if v.dtype == bool else torch.float32, device=self.device)
+               for k, v in s.items()}
+        return dict(success=torch.as_tensor(success, device=self.device), **out)
 
     def compute_dense_reward(self, obs, action, info):
         """``-tanh(keypoint error / 2 cm)`` (in [-1, 0]) + 0.25 while the tip is in the hole + 2 at success."""
@@ -303,22 +352,35 @@ class InsertEnv(TaskEnv):
         return -torch.tanh(err / 0.02) + 0.25 * engaged.float() + 2.0 * info["success"].float()
 
     def grip_correction(self) -> np.ndarray:
-        """``grip`` (6,): the in-hand correction ``C`` of the module docstring (m, rad), float32."""
-        plug_in_tcp = np.linalg.inv(self.tcp_pose()) @ self.plug_pose()
+        """``grip`` ``(N, 6)``: the in-hand correction ``C`` of the module docstring (m, rad), float32."""
+        plug_in_tcp = np.linalg.inv(self.tcp_poses()) @ self.plug_poses()
         tcp_in_plug = pose_matrix(TCP_IN_PLUG_ROT, [0.0, 0.0, self.grip_height])
         c = np.linalg.inv(tcp_in_plug) @ np.linalg.inv(plug_in_tcp)
-        return np.concatenate([c[:3, 3], rotvec(c[:3, :3])]).astype(np.float32)
+        return np.concatenate([c[:, :3, 3], rotvec(c[:, :3, :3])], axis=1).astype(np.float32)
 
     def task_obs(self) -> dict[str, np.ndarray]:
-        """The policy's observations (see the module docstring): ``state`` (24,), ``grip`` (6,), ``cloud`` (P, 3)."""
-        qpos = self.agent.robot.get_qpos()[0].numpy()[:7]
-        tcp = self.agent.tcp.pose.raw_pose[0].numpy()
+        """The policy's observations (see the module docstring), batched: ``state`` (N, 24), ``grip`` (N, 6),
+        ``cloud`` (N, P, 3)."""
+        qpos = to_numpy(self.agent.robot.get_qpos())[:, :7]
+        tcp = to_numpy(self.agent.tcp.pose.raw_pose)
         target = self._target_obs_pq
-        state = np.concatenate([qpos, tcp, target, target[:3] - tcp[:3]]).astype(np.float32)
+        state = np.concatenate([qpos, tcp, target, target[:, :3] - tcp[:, :3]], axis=1).astype(np.float32)
         out = {"state": state, "grip": self.grip_correction()}
         if self.cloud_points:
-            plug, sock = self.plug_pose(), self.socket_world
-            cloud = np.concatenate([self._plug_cloud @ plug[:3, :3].T + plug[:3, 3],
-                                    self._socket_cloud @ sock[:3, :3].T + sock[:3, 3]])
-            out["cloud"] = (cloud - tcp[:3]).astype(np.float32)
+            plug, sock = self.plug_poses(), self.socket_world
+            clouds = self._plug_clouds[self._env_object]
+            cloud = np.concatenate([clouds @ np.swapaxes(plug[:, :3, :3], 1, 2) + plug[:, None, :3, 3],
+                                    self._socket_cloud @ np.swapaxes(sock[:, :3, :3], 1, 2) + sock[:, None, :3, 3]],
+                                   axis=1)
+            out["cloud"] = (cloud - tcp[:, None, :3]).astype(np.float32)
         return out
+
+
+def _poses(matrices: np.ndarray, device) -> Pose:
+    """A batched ManiSkill pose from ``(N, 4, 4)`` matrices, each converted as ``sapien.Pose`` converts one."""
+    return Pose.create([sapien.Pose(m.astype(np.float32)) for m in matrices], device=device)
+
+
+def _norms(vectors: np.ndarray) -> np.ndarray:
+    """``(N,)`` Euclidean norms of ``(N, D)`` rows, each as ``np.linalg.norm`` of the row alone computes it."""
+    return np.sqrt(np.vecdot(vectors, vectors))

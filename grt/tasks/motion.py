@@ -35,22 +35,24 @@ def translated(pose: np.ndarray, delta: np.ndarray) -> np.ndarray:
 
 
 class PandaIK:
-    """IK of one link (default: the TCP) of a ManiSkill Panda on the CPU backend.
+    """IK of one link (default: the TCP) of a ManiSkill Panda (its first sub-scene's; all share the kinematics).
 
     Args:
         robot: the ManiSkill ``Articulation`` (single env).
         ee_link: link whose pose is solved for.
         max_iterations: CLIK iterations per solve.
         tolerance: accepted se(3) error norm.
+        base: the robot's root pose in its (sub-)scene (``None``: read from the simulator, which a GPU
+            simulation does not allow).
     """
 
     def __init__(self, robot, ee_link: str = "panda_hand_tcp", max_iterations: int = 300,
-                 tolerance: float = 1e-3):
+                 tolerance: float = 1e-3, base: sapien.Pose | None = None):
         articulation = robot._objs[0]
         self.model = articulation.create_pinocchio_model()
         names = [link.name for link in articulation.links]
         self.ee_index = next(i for i, n in enumerate(names) if n == ee_link or n.endswith("_" + ee_link))
-        self.base_inv = articulation.root_pose.inv()
+        self.base_inv = (articulation.root_pose if base is None else base).inv()
         limits = np.asarray(articulation.get_qlimits(), np.float64)
         self.lower, self.upper = limits[:, 0], limits[:, 1]
         self.mask = np.array([1] * ARM_DOF + [0] * (len(limits) - ARM_DOF), np.int32)

@@ -2,7 +2,9 @@
 
 SAPIEN caches meshes by file path and skips shapes that fail to cook without a word, and PhysX
 inflates degenerate hulls into 2 mm boxes; so objects are built here from vertex arrays in memory,
-every collision part is counted, and every cooked hull is compared with its input.
+every collision part is counted, and every cooked hull is compared with its input. On the GPU
+(``physx_cuda``) PhysX cooks every hull to at most 64 vertices and 64 polygons, growing a larger one into
+a hull that contains it: there a hull may grow by up to :data:`GPU_INFLATION`, and the growth is tallied.
 """
 
 from __future__ import annotations
@@ -15,6 +17,16 @@ from mani_skill.utils import sapien_utils
 from mani_skill.utils.building.actor_builder import ActorBuilder
 from sapien import physx
 
+#: how much (m) a cooked hull's extent may exceed its input's before the part counts as degenerate: on the
+#: CPU PhysX cooks a hull as given (a flat or tiny part grows into a ~2 mm box); on the GPU it also grows
+#: hulls of more than 64 vertices or polygons into ones that contain them.
+CPU_INFLATION, GPU_INFLATION = 5e-4, 5e-3
+
+
+def new_tally() -> dict:
+    """A record of the hulls built: ``parts`` and the largest growth ``max_inflation_m`` PhysX gave one."""
+    return {"parts": 0, "max_inflation_m": 0.0}
+
 
 class InMemoryActorBuilder(ActorBuilder):
     """A ManiSkill actor builder whose collision shapes are convex vertex arrays held in memory.
@@ -25,22 +37,28 @@ class InMemoryActorBuilder(ActorBuilder):
         density: kg/m^3 of every part (mass and inertia follow from the parts' volumes).
     """
 
-    def __init__(self, parts: list[np.ndarray], material: physx.PhysxMaterial, density: float):
+    def __init__(self, parts: list[np.ndarray], material: physx.PhysxMaterial, density: float,
+                 tally: dict | None = None):
         super().__init__()
         self._parts = [np.ascontiguousarray(p, dtype=np.float32).reshape(-1, 3) for p in parts]
-        self._material, self._density = material, float(density)
+        self._material, self._density, self._tally = material, float(density), tally
         self.num_built_shapes = 0
 
     def build_physx_component(self, link_parent=None):
         component = super().build_physx_component(link_parent)
+        gpu = bool(getattr(self.scene, "gpu_sim_enabled", False))
         self.num_built_shapes += attach_convex_parts(component, self._parts, self._material, self._density,
-                                                     self.collision_groups)
+                                                     self.collision_groups, GPU_INFLATION if gpu else CPU_INFLATION,
+                                                     self._tally)
         return component
 
 
 def attach_convex_parts(component, parts: list[np.ndarray], material: physx.PhysxMaterial, density: float,
-                        collision_groups) -> int:
+                        collision_groups, max_inflation: float = CPU_INFLATION, tally: dict | None = None) -> int:
     """Attach convex collision shapes built from vertex arrays to a PhysX body; returns how many.
+
+    ``max_inflation``: the growth (m) of a cooked hull's extent beyond which it counts as degenerate
+    (:data:`CPU_INFLATION`, :data:`GPU_INFLATION`); ``tally``: a :func:`new_tally` record to update.
 
     Raises:
         ValueError: a part with < 4 or non-finite vertices, that PhysX cannot cook, or that PhysX
@@ -58,7 +76,10 @@ def attach_convex_parts(component, parts: list[np.ndarray], material: physx.Phys
             raise ValueError(f"collision part {i} ({len(verts)} vertices) did not build: {err}") from err
         # PhysX "cooks" a flat, collinear or tiny part into a ~2 mm box without complaint.
         inflation = np.ptp(shape.get_vertices(), axis=0) - np.ptp(verts, axis=0)
-        if inflation.max() > 5e-4:
+        if tally is not None:
+            tally["parts"] += 1
+            tally["max_inflation_m"] = max(tally["max_inflation_m"], float(inflation.max()))
+        if inflation.max() > max_inflation:
             raise ValueError(f"collision part {i} is degenerate (flat, collinear or < 1 mm): PhysX "
                              f"inflated it by {inflation.max() * 1000:.1f} mm")
         shape.set_collision_groups(collision_groups)
@@ -82,7 +103,8 @@ def render_mesh_shape(mesh: trimesh.Trimesh, color, pose: sapien.Pose | None = N
 
 def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], name: str,
                        friction: float = 1.0, density: float = 500.0,
-                       color: tuple[float, float, float] = (0.8, 0.45, 0.2), initial_z: float = 0.0):
+                       color: tuple[float, float, float] = (0.8, 0.45, 0.2), initial_z: float = 0.0,
+                       scene_idxs: list[int] | None = None, tally: dict | None = None):
     """Build a dynamic actor: visual = ``mesh``, collision = ``parts``, all from memory.
 
     Args:
@@ -94,6 +116,9 @@ def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], na
         density: kg/m^3.
         color: RGB in [0, 1] of the visual.
         initial_z: z (m) of the actor frame at creation.
+        scene_idxs: the parallel sub-scenes to build it in (``None``: all); one index per object when every
+            sub-scene holds its own (then ``Actor.merge`` the actors, as ManiSkill's ``pick_single_ycb.py``).
+        tally: a :func:`new_tally` record of the hulls built.
 
     Returns:
         The ManiSkill ``Actor``.
@@ -104,11 +129,13 @@ def build_object_actor(scene, mesh: trimesh.Trimesh, parts: list[np.ndarray], na
     if len(parts) == 0:
         raise ValueError("an object needs at least one convex collision part")
     material = physx.PhysxMaterial(static_friction=friction, dynamic_friction=friction, restitution=0.0)
-    builder = InMemoryActorBuilder(parts, material, density)
+    builder = InMemoryActorBuilder(parts, material, density, tally)
     builder.set_scene(scene)
     if scene.can_render():
         builder._procedural_shapes.append(render_mesh_shape(mesh, color))
     builder.initial_pose = sapien.Pose(p=[0.0, 0.0, initial_z])
+    if scene_idxs is not None:
+        builder.set_scene_idxs(list(scene_idxs))
     actor = builder.build(name=name)
     built = len(actor._objs[0].find_component_by_type(physx.PhysxRigidDynamicComponent).collision_shapes)
     if built != len(parts) or builder.num_built_shapes != len(parts):

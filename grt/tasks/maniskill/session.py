@@ -54,6 +54,7 @@ import numpy as np
 import trimesh
 
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TrialOutcome
+from grt.tasks.batched import BatchedEpisodes, Objects
 from grt.tasks.maniskill.driver import StepLimit, StepRecorder
 from grt.tasks.maniskill.geometry import ActorFrame, check_grt_frame
 from grt.tasks.maniskill.swap import ActorSwap, Candidate
@@ -120,7 +121,7 @@ def _resolve(path: str | None):
                              "function module.name(env, swap) -> {attribute: value}, or null") from None
 
 
-class ManiSkillSession(EpisodeSession):
+class ManiSkillSession(BatchedEpisodes, EpisodeSession):
     """Episodes of one policy on one registered ManiSkill env, one actor swapped for the candidate.
 
     Args:
@@ -137,6 +138,8 @@ class ManiSkillSession(EpisodeSession):
         max_steps: control steps per episode (``None``: the env's ``max_episode_steps``).
         rebuild_each_trial: reconfigure before every trial (see :class:`~grt.tasks.base.EpisodeSession`).
         driver_step_limit: steps an env-driving policy may take (``None``: 20 x ``max_steps``).
+        num_envs, sim_backend, render_backend, sim_config: ManiSkill's (``evaluator=gpu`` sets them:
+            :mod:`grt.tasks.batched`; more than one sub-scene for closed-loop policies only).
     """
 
     policy_kinds = ("closed_loop", "env_driver")
@@ -147,7 +150,8 @@ class ManiSkillSession(EpisodeSession):
                  obs_mode: str = "state", control_mode: str | None = None, actor: str = "cube",
                  score: str = "success", score_unit: str = "", failure_flags=None, refresh: str | None = None,
                  env_module: str | None = None, max_steps: int | None = None, rebuild_each_trial: bool = False,
-                 driver_step_limit: int | None = None):
+                 driver_step_limit: int | None = None, num_envs: int = 1, sim_backend: str = "physx_cpu",
+                 render_backend: str = "cpu", sim_config: dict | None = None):
         import gymnasium as gym
 
         import_env_module(env_module)
@@ -164,8 +168,9 @@ class ManiSkillSession(EpisodeSession):
         self.flags = failure_modes(failure_flags)
         self.failure_modes = (*COMMON_MODES, *(m for _, m in self.flags), "timeout")
         self.swap = ActorSwap(self.actor, _resolve(refresh))
-        kwargs = dict(obs_mode=obs_mode, sim_backend="physx_cpu", render_backend="cpu", num_envs=1,
-                      **(env_kwargs or {}))
+        self.num_envs = int(num_envs)
+        kwargs = dict(obs_mode=obs_mode, sim_backend=sim_backend, render_backend=render_backend, num_envs=self.num_envs,
+                      **({"sim_config": dict(sim_config)} if sim_config else {}), **(env_kwargs or {}))
         if control_mode:
             kwargs["control_mode"] = control_mode
         if max_steps:
@@ -247,6 +252,44 @@ class ManiSkillSession(EpisodeSession):
             actor_mesh.vertices = self.frame.to_actor(mesh.vertices)
             self.swap.set_candidates(Candidate(actor_mesh, [self.frame.to_actor(p) for p in parts]))
         self._object_changed = True
+
+    def load_objects(self, objects: Objects, assignment) -> None:
+        """Sub-scene ``i`` holds ``objects[assignment[i]]`` (GRT's frame, meters; see :meth:`load_object`)."""
+        cands = []
+        for mesh, parts in objects:
+            actor_mesh = mesh.copy()
+            actor_mesh.vertices = self.frame.to_actor(mesh.vertices)
+            cands.append(Candidate(actor_mesh, [self.frame.to_actor(p) for p in parts]))
+        self.swap.set_candidates({i: cands[int(a)] for i, a in enumerate(assignment)})
+        self._object_changed = True
+
+    # ------------------------------------------------------------------ BatchedEpisodes hooks (evaluator=gpu)
+    def _reset_batch(self, seeds, rebuild: bool) -> None:
+        self._obs, _ = self.env.reset(seed=[int(s) for s in seeds],
+                                      options=dict(reconfigure=bool(rebuild or self._object_changed)))
+        self._object_changed = False
+
+    def _step_batch(self, actions: np.ndarray):
+        self._obs, reward, _, _, info = self.env.step(actions)
+        out = self.info_batch(info)
+        return np.asarray(_numpy(reward)).reshape(self.num_envs), out["success"].astype(bool), out
+
+    def clip_actions(self, actions: np.ndarray) -> np.ndarray:
+        return np.clip(actions, self.action_low, self.action_high)
+
+    def check_batch(self, info: dict[str, np.ndarray]) -> list[str | None]:
+        """As :meth:`_check`, per sub-scene: a non-finite state, the swapped actor non-finite or run away."""
+        errors = super().check_batch(info)
+        for b in self.swap.builds:
+            p = np.asarray(_numpy(b.actor.pose.p), np.float64).reshape(-1, 3)
+            far = np.linalg.norm(p, axis=-1)
+            scenes = b.scene_idxs if len(b.scene_idxs) == len(p) else range(len(p))
+            for k, i in enumerate(scenes):
+                if errors[i] is None and not np.isfinite(p[k]).all():
+                    errors[i] = f"FloatingPointError: the actor {b.name!r} has a non-finite pose"
+                elif errors[i] is None and far[k] > RUNAWAY_M:
+                    errors[i] = f"RuntimeError: the actor {b.name!r} ran away ({far[k]:.1f} m from the origin)"
+        return errors
 
     # ------------------------------------------------------------------ EpisodeSession hooks
     def _reset_env(self, seed: int, rebuild: bool) -> None:
