@@ -55,7 +55,7 @@ def budget_tau(tau: float | None, tau_rel: float | None, diagonal_m: float) -> t
     if tau is not None:
         return float(tau), f"budget.tau = {tau * 1000:.3g} mm mean handle displacement"
     if tau_rel is None:
-        return None, "no Smoothness-Score cap (budget.tau and budget.tau_rel are null)"
+        return None, "none (budget.tau and budget.tau_rel are null)"
     meters = round(float(tau_rel) * float(diagonal_m), 4)
     if meters <= 0:
         meters = float(tau_rel) * float(diagonal_m)
