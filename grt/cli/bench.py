@@ -11,7 +11,7 @@ import sys
 
 from grt.cli._common import exit_on_user_error
 
-BENCHMARKS = ("deform", "grasp", "insertion", "drawer", "meshes", "remote", "scale")
+BENCHMARKS = ("deform", "grasp", "insertion", "drawer", "meshes", "remote", "scale", "racing")
 USAGE = f"usage: python -m grt.bench {{{','.join(BENCHMARKS)}}} [options]  (--help for each)"
 
 
