@@ -24,7 +24,7 @@ from grt.console import console as wide_console
 from grt.fileio import atomic_path, write_text_atomic
 from grt.geometry.quality import shape_change
 from grt.optimizers.smoothness import budget_tau
-from grt.racing import stopped, trials_used
+from grt.racing import search_figures, stopped
 from grt.scores import ScoreSpec, crash_margin, is_crash
 
 
@@ -190,8 +190,9 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "tau_rel": cfg.budget.get("tau_rel") if cfg.budget.tau is None else None, "tau_how": run_tau(cfg, deformer.mesh)[1],
         "seed": cfg.budget.seed,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
-        # simulator trials behind the journal (racing: a stopped candidate counts the trials it ran)
-        "trials_used": trials_used(records),
+        # simulator trials behind the journal (racing: a stopped candidate counts the trials it ran), per
+        # iteration, and up to the first (confirmed) CrashShape of the top-k
+        **search_figures(records, confirmation),
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
         "workers": getattr(evaluator, "worker_limits", None),  # requested, used (bounded by cores, memory)
         # where the trials ran: backend (pool or ray), address, nodes, trials per node (this session's)

@@ -210,3 +210,30 @@ def search_score(record: dict) -> float:
 def trials_used(records: list[dict]) -> int:
     """Simulator trials behind the journal ``records`` (a stopped candidate counts the trials it ran)."""
     return sum(len(r.get("trials") or []) for r in records)
+
+
+def search_figures(records: list[dict], confirmation: dict | None = None) -> dict:
+    """What a search cost in simulator trials, from its journal ``records`` (and its ``confirm`` block):
+
+    * ``trials_used``: every trial run (nominal included; a raced-out candidate counts the trials it ran);
+    * ``trials_curve``: trials used by the end of iteration ``t = 0..T`` (the x-axis of a degradation curve
+      against trials);
+    * ``trials_to_first_crash``: trials used when the first full-trial CrashShape of the top-k was journaled
+      (candidates in journal order; ``None``: none), and ``trials_to_first_confirmed``: the same for the first
+      one whose drop the fresh-episode confirmation found significant (``None``: none confirmed, or no
+      confirmation).
+    """
+    curve: list[int] = []
+    used, at = 0, {}
+    for rec in records:
+        while len(curve) < rec["iteration"]:
+            curve.append(used)
+        used += len(rec.get("trials") or [])
+        at[(rec["iteration"], rec["candidate"])] = used
+    curve.append(used)
+    shapes = (confirmation or {}).get("shapes") or []
+    crashes = [at.get((s["iteration"], s["candidate"])) for s in shapes]
+    confirmed = [at.get((s["iteration"], s["candidate"])) for s in shapes if s.get("confirmed")]
+    return {"trials_used": used, "trials_curve": curve,
+            "trials_to_first_confirmed": min(confirmed) if confirmed else None,
+            "trials_to_first_crash": min(crashes) if crashes else None}
