@@ -71,4 +71,6 @@ def test_task_carries_its_default_object():
 @pytest.mark.parametrize("exp", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))
 def test_experiment_configs_compose(exp):
     cfg = compose_run([f"experiment={exp}"])
-    assert cfg.budget.population == 10 and cfg.budget.iterations == 10
+    # the paper's tables keep the paper's budget; issue 39's search benchmark is sized for a 2-core machine
+    paper = (cfg.budget.population, cfg.budget.iterations) == (10, 10)
+    assert paper if exp != "search" else (cfg.budget.population, cfg.budget.iterations, cfg.budget.trials) == (5, 4, 8)
