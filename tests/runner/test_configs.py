@@ -73,4 +73,4 @@ def test_experiment_configs_compose(exp):
     cfg = compose_run([f"experiment={exp}"])
     # the paper's tables keep the paper's budget; issue 39's search benchmark is sized for a 2-core machine
     paper = (cfg.budget.population, cfg.budget.iterations) == (10, 10)
-    assert paper if exp != "search" else (cfg.budget.population, cfg.budget.iterations, cfg.budget.trials) == (5, 4, 8)
+    assert paper if exp != "search" else (cfg.budget.population, cfg.budget.iterations, cfg.budget.trials) == (4, 4, 8)
