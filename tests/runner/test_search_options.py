@@ -49,7 +49,7 @@ def test_library_optimizers_replay_exactly_from_their_seed(option):
     node = compose_run([f"optimizer={option}", "budget=smoke"]).optimizer  # 3 x 2: Optuna's 2nd is the GP's
     runs = []
     for _ in range(2):
-        opt, asked = instantiate(node)(num_handles=4), []
+        opt, asked = instantiate(node)(num_handles=2), []
         for _ in range(2):
             theta = opt.ask()
             opt.tell(theta, 1.0 - np.tanh(np.abs(theta).sum(axis=(1, 2))))  # any deterministic score
