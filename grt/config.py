@@ -52,6 +52,9 @@ def at_least(low: int) -> Rule:
 
 POSITIVE = Rule("a finite number > 0", _is_positive)
 POSITIVE_OR_NULL = Rule("null (off) or a finite number > 0", lambda v: v is None or _is_positive(v))
+BOOLEAN = Rule("true or false", lambda v: isinstance(v, bool))
+RISK = Rule("a number in [0, 0.5) (0: only stop a candidate that cannot matter even if every trial left fails)",
+            lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 0.5)
 
 
 def _field(default, rule: Rule, meaning: str):
@@ -78,6 +81,10 @@ class BudgetSchema:
         videos: CrashShapes whose failing trial (and the nominal object's on the same seed) are filmed
             for ``report.html`` after the search (:mod:`grt.rerun`); 0 turns it off. ``report.videos``
             of ``conf/run.yaml`` reads it.
+        racing: run each candidate's trials in rounds and stop it once it cannot be a CrashShape among the
+            ``top_k`` (:mod:`grt.racing`); off: every candidate runs every trial (as before racing existed).
+        race_rounds: rounds of about equal size a raced candidate's trials run in (at most one per trial).
+        race_alpha: the most probability with which racing stops a candidate that would have mattered.
     """
 
     population: int = _field(10, at_least(1), "candidates per iteration")
@@ -93,6 +100,9 @@ class BudgetSchema:
     confirm_trials: int = _field(0, at_least(0), "fresh episodes re-scoring the nominal object and each "
                                  "CrashShape after the search (0: off)")
     videos: int = _field(3, at_least(0), "CrashShapes filmed for report.html after the search (0: off)")
+    racing: bool = _field(False, BOOLEAN, "race each candidate's trials in rounds, stopping one that cannot matter")
+    race_rounds: int = _field(8, at_least(2), "rounds a raced candidate's trials run in")
+    race_alpha: float = _field(0.05, RISK, "the most probability of stopping a candidate that would have mattered")
 
 
 BUDGET_KEYS = tuple(f.name for f in fields(BudgetSchema))
@@ -159,6 +169,7 @@ def validate(cfg: DictConfig, classes: tuple[str, ...] | None = None) -> DictCon
     budget = cfg.get("budget")
     if budget is not None:
         check_budget(budget)
+        _check_racing(budget, cfg.get("task"))
     added, groups, app = _command()
     resumed = bool(cfg.get("resume"))  # a run's own config, accepted when it started: its classes must import
     if added and not resumed:
@@ -182,6 +193,16 @@ def _command() -> tuple[list[str], set[str], str]:
         return [], set(), "this command"
     hydra_cfg = HydraConfig.get()
     return list(hydra_cfg.overrides.task), set(hydra_cfg.runtime.choices), f"grt.{hydra_cfg.job.name}"
+
+
+def _check_racing(budget: Mapping, task: Mapping | None) -> None:
+    """Racing judges success rates (a hypergeometric count of failures): refuse it for a continuous score."""
+    from grt.scores import ScoreSpec
+
+    if budget.get("racing") and task is not None and not ScoreSpec.from_task(task).binary:
+        spec = ScoreSpec.from_task(task)
+        raise ConfigError(f"budget.racing=true needs a success rate, but task {task.get('name')}'s score is "
+                          f"{spec.label}; run it with budget.racing=false")
 
 
 def _check_optimizer(node: DictConfig) -> None:

@@ -25,6 +25,7 @@ from grt.console import console as wide_console
 from grt.fileio import atomic_path, write_text_atomic
 from grt.geometry.quality import shape_change
 from grt.optimizers.smoothness import budget_tau
+from grt.racing import search_figures, stopped
 from grt.scores import ScoreSpec, crash_margin, is_crash
 
 
@@ -230,6 +231,9 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "tau_rel": cfg.budget.get("tau_rel") if cfg.budget.tau is None else None, "tau_how": run_tau(cfg, deformer.mesh)[1],
         "seed": cfg.budget.seed,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
+        # simulator trials behind the journal (racing: a stopped candidate counts the trials it ran), per
+        # iteration, and up to the first (confirmed) CrashShape of the top-k
+        **search_figures(records, confirmation),
         "wall_s": round(wall_s, 1), "git": git_state(), "machine": machine_state(),
         "workers": getattr(evaluator, "worker_limits", None),  # requested, used (bounded by cores, memory)
         # where the trials ran: backend (pool or ray), address, nodes, trials per node (this session's)
@@ -242,6 +246,14 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "validity_checked": any("valid" in r for r in records if r["iteration"] >= 1),
         "max_volume_change": cfg.deformer.get("max_volume_change") if cfg.deformer.get("validity") else None,
     }
+    if cfg.budget.get("racing"):  # what racing saved; the metrics above count full-trial candidates only
+        raced = [r for r in records if r["iteration"] >= 1 and r.get("race")]
+        summary["racing"] = {
+            "rounds": cfg.budget.race_rounds, "alpha": cfg.budget.race_alpha, "top_k": cfg.budget.top_k,
+            "stopped": sum(stopped(r) for r in raced), "full": sum(not stopped(r) for r in raced),
+            "trials_all": len(next(r for r in records if r["iteration"] == 0)["trials"]) * (1 + len(raced)),
+            "why": {why: sum(r["race"]["stopped"] == why for r in raced) for why in
+                    sorted({r["race"]["stopped"] for r in raced if stopped(r)})}}
     if confirmation is not None:
         summary["confirm"] = confirmation
         summary["confirmed_final_drop"] = confirmation["confirmed_final_drop"]

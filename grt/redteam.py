@@ -8,6 +8,7 @@ evaluated again (its stored theta must match the replayed one, which catches a c
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -21,10 +22,16 @@ from grt.geometry.mesh import mesh_hash
 from grt.journal import InOrder, Journal, JournalError
 from grt.optimizers.base import Optimizer
 from grt.optimizers.smoothness import project_to_budget, smoothness_score
+from grt.racing import Racing, search_score, stopped
 
 if TYPE_CHECKING:
     from grt.evaluators.base import Evaluator
     from grt.geometry.deform import ShapeDeformer
+
+
+def _races(evaluator) -> bool:
+    """Whether ``evaluator.evaluate_each`` takes ``race`` (an evaluator written before racing runs every trial)."""
+    return "race" in inspect.signature(evaluator.evaluate_each).parameters
 
 
 def episode_seeds(seed: int, trials: int) -> list[int]:
@@ -68,6 +75,10 @@ class RedTeamLoop:
             :func:`grt.geometry.quality.candidate_validity`), stored in each record; a candidate that
             is not valid (self-intersecting, folded) is not simulated: its score is NaN, so it is never
             a CrashShape and the search sees it as the nominal object.
+        racing: race each candidate's trials (:mod:`grt.racing`, ``budget.racing``; ``None``: off, every
+            candidate runs every trial). A stopped candidate's record has ``race`` (trials run, why it
+            stopped, its mean over them) and a NaN ``score``: no metric, CrashShape or confirmation counts
+            it; the search is told its mean over the trials it ran.
     """
 
     def __init__(self, deformer: ShapeDeformer, optimizer: Optimizer, evaluator: Evaluator, journal: Journal,
@@ -76,18 +87,20 @@ class RedTeamLoop:
                  on_candidate: Callable[[dict], None] | None = None,
                  on_iteration: Callable[[int, list[float]], None] | None = None, ci: str = "auto",
                  on_nominal: Callable[[float], None] | None = None,
-                 validity: Callable[[trimesh.Trimesh, trimesh.Trimesh], dict] | None = None):
+                 validity: Callable[[trimesh.Trimesh, trimesh.Trimesh], dict] | None = None,
+                 racing: Racing | None = None):
         self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
         self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
         self.tau, self.complexity, self.ci = tau, complexity, ci
         self.on_candidate, self.on_iteration, self.on_nominal = on_candidate, on_iteration, on_nominal
-        self.validity = validity
+        self.validity, self.racing = validity, racing
         self.evaluations = 0
 
     def run(self) -> RedTeamResult:
         """Evaluate the nominal object, then ``T`` iterations of Algorithm 1."""
         for rec in self.journal.records:
-            if rec.get("valid", True) and [tr["seed"] for tr in rec["trials"]] != self.seeds:
+            ran = [tr["seed"] for tr in rec["trials"]]
+            if rec.get("valid", True) and ran != self.seeds and not (stopped(rec) and ran == self.seeds[:len(ran)]):
                 self._mismatch(rec["iteration"], rec["candidate"], "its episode seeds differ (budget.trials "
                                "or budget.seed changed)")
         s0 = self._nominal_score()
@@ -105,11 +118,11 @@ class RedTeamLoop:
         for t in range(1, self.iterations + 1):
             thetas = self.optimizer.ask()  # mutate: floor(gamma M) handles per candidate (TOPDM)
             thetas = project_to_budget(thetas, self.tau, self.deformer.meters_per_unit)
-            scores = self._population_scores(t, thetas)
+            scores, told = self._population_scores(t, thetas)
             # A candidate the simulator could not score (all trials sim_error, NaN) or an implausible one
             # (self-intersecting, not simulated, NaN) is no CrashShape: the search sees it as the nominal
-            # object, so it is never an elite by accident.
-            search = np.where(np.isfinite(scores), scores, s0)
+            # object, so it is never an elite by accident. A raced-out one: its mean over the trials it ran.
+            search = np.where(np.isfinite(told), told, s0)
             self.optimizer.tell(thetas, search)  # keep ceil(rho N) elites, replicate
             history.append([float(x) for x in scores])
             if self.on_iteration:
@@ -128,9 +141,11 @@ class RedTeamLoop:
             self._mismatch(0, 0, "the nominal object differs (object= changed)")
         return float(rec["score"])
 
-    def _population_scores(self, t: int, thetas: np.ndarray) -> list[float]:
-        """Scores of iteration ``t``'s candidates: replayed from the journal, the others evaluated together."""
+    def _population_scores(self, t: int, thetas: np.ndarray) -> tuple[list[float], list[float]]:
+        """Scores of iteration ``t``'s candidates (replayed from the journal, the others evaluated together)
+        and what the search is told (the same, but a raced-out candidate's mean over the trials it ran)."""
         scores, todo = [float("nan")] * len(thetas), []
+        told = [float("nan")] * len(thetas)
         for i, theta in enumerate(thetas):
             rec = self.journal.get(t, i)
             if rec is None:
@@ -138,10 +153,10 @@ class RedTeamLoop:
                 continue
             if not np.allclose(np.asarray(rec["theta"]), theta, rtol=1e-9, atol=1e-12):
                 self._mismatch(t, i, "its parameters differ (optimizer, seed, handles or budget changed)")
-            scores[i] = float(rec["score"])
+            scores[i], told[i] = float(rec["score"]), search_score(rec)
         for rec in self._evaluate(t, todo) if todo else []:
-            scores[rec["candidate"]] = float(rec["score"])
-        return scores
+            scores[rec["candidate"]], told[rec["candidate"]] = float(rec["score"]), search_score(rec)
+        return scores, told
 
     def _mismatch(self, t: int, i: int, why: str) -> None:
         raise JournalError(f"{self.journal.path}: iteration {t} candidate {i} of the journal was not made by this "
@@ -180,8 +195,12 @@ class RedTeamLoop:
             if k not in sim:
                 finish(k, None)
         if sim:
-            self.evaluator.evaluate_each([todo[k][2] for k in sim], self.seeds,
-                                         lambda j, result: finish(sim[j], result))
+            meshes, on_result = [todo[k][2] for k in sim], lambda j, result: finish(sim[j], result)
+            if self.racing is not None and t > 0 and _races(self.evaluator):  # the nominal runs every trial
+                race = self.racing.for_iteration(len(self.seeds), self._s0, self.journal.records, t)
+                self.evaluator.evaluate_each(meshes, self.seeds, on_result, race=race)
+            else:
+                self.evaluator.evaluate_each(meshes, self.seeds, on_result)
             self.evaluations += len(sim)
         if len(order.written) != len(todo):
             raise RuntimeError(f"the evaluator returned {len(order.written)} of {len(todo)} candidates' results")
@@ -196,10 +215,17 @@ class RedTeamLoop:
                       for o in result.trials]
             score, ci95, outcomes = float(result.score), list(result.ci95(self.ci)), result.outcomes
             wall = check_s + float(result.wall_s)
+            race = result.info.get("race")
+            if race is not None:  # racing: the trials it ran; a stopped one has no full-trial score
+                race = {**race, "score": score, "ci95": ci95}
+                if race["stopped"]:
+                    score, ci95 = float("nan"), [float("nan")] * 2
         else:
             score, ci95, outcomes, trials, wall = float("nan"), [float("nan")] * 2, {}, [], check_s
+            race = None
         return {
             "iteration": t, "candidate": i, "score": score, "ci95": ci95, "outcomes": outcomes,
+            **({"race": race} if race is not None else {}),
             **validity,
             "theta": np.asarray(theta).tolist(),
             "smoothness_m": float(smoothness_score(theta, self.deformer.meters_per_unit)),

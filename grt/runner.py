@@ -34,6 +34,7 @@ from grt.geometry.quality import candidate_validity
 from grt.journal import Journal
 from grt.outputs import crash_records, print_summary, run_tau, save_nominal, write_outputs
 from grt.policies.base import PolicyServerError
+from grt.racing import Racing
 from grt.redteam import RedTeamLoop, episode_seeds
 from grt.runfolder import (
     RUN_CONFIG,
@@ -122,7 +123,7 @@ def _run(cfg: DictConfig, run_dir: Path, score: ScoreSpec, floor) -> dict:
                 logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
                 folding(t)),
             ci=score.ci, on_nominal=lambda s0: check_nominal_floor(s0, floor, score, resume_command(run_dir)),
-            validity=_validity(cfg))
+            validity=_validity(cfg), racing=racing(cfg))
         try:
             result = loop.run()
             bar.close()
@@ -228,6 +229,14 @@ def write_report(cfg: DictConfig, run_dir: Path, summary: dict, logger=None) -> 
     if logger is not None and hasattr(logger, "log_report"):
         logger.log_report(run_dir, summary, index)
     print(f"report: {path} ({time.perf_counter() - start:.1f} s)", flush=True)
+
+
+def racing(cfg: DictConfig) -> Racing | None:
+    """The run's racing settings (``budget.racing``; ``None``: off, every candidate runs every trial)."""
+    if not cfg.budget.get("racing"):
+        return None
+    return Racing(int(cfg.budget.race_rounds), float(cfg.budget.race_alpha), int(cfg.budget.top_k),
+                  crash_margin(cfg.task))
 
 
 def _validity(cfg: DictConfig):

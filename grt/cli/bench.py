@@ -11,7 +11,7 @@ import sys
 
 from grt.cli._common import about_line, exit_on_user_error
 
-BENCHMARKS = ("deform", "grasp", "insertion", "drawer", "meshes", "remote", "scale", "gpu")
+BENCHMARKS = ("deform", "grasp", "insertion", "drawer", "meshes", "remote", "scale", "gpu", "racing")
 USAGE = f"usage: python -m grt.bench {{{','.join(BENCHMARKS)}}} [options]  (--help for each)"
 
 

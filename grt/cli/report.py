@@ -3,7 +3,8 @@
 ``--csv OUT.csv`` also writes the per-run rows; ``--markdown`` prints a folder's record (its run table and
 its blue-team ``table3*.json`` tables), ``--records`` adds the commit that wrote each summary, and
 ``--html`` writes ``report.html`` (one self-contained page: a run folder's, or a sweep's linking each run's
-page), ``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
+page), ``--search-plot OUT.png`` draws the Final Drop against simulator trials per search method,
+``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
 (``python -m grt.report experiments --update-readmes``). A mistake (no such folder, no or a broken
 ``summary.json``, a ``--csv`` path that cannot be written) is one ``error:`` line and exit code 2; a run
 stopped before its end is one line naming the command that finishes it (as ``--html`` says on its page).
@@ -37,6 +38,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--records", action="store_true", help="with --markdown: the commit of every summary")
     ap.add_argument("--html", action="store_true",
                     help="write report.html: a run's page (3D CrashShapes, failure modes, videos) or a sweep's")
+    ap.add_argument("--search-plot", type=Path, metavar="OUT.png",
+                    help="write the degradation curve against simulator trials used, per search method")
     ap.add_argument("--update-readmes", action="store_true",
                     help="rewrite the <!-- grt.report ... --> blocks of every README.md under PATH")
     args = ap.parse_args(argv)
@@ -46,6 +49,15 @@ def main(argv: list[str] | None = None) -> None:
 
             for out in write_report(args.path):
                 print(f"wrote {out}")
+            return
+        if args.search_plot:
+            from grt.report.search import plot
+
+            check_output_file(args.search_plot, (".png",), "--search-plot")
+            try:
+                print(f"wrote {plot(collect(args.path)[0], args.search_plot)}")
+            except ValueError as exc:
+                raise ReportError(f"{args.path}: {exc}") from None
             return
         if args.update_readmes:
             changed = update_readmes(args.path)

@@ -112,12 +112,15 @@ class Evaluator(ABC):
         """
 
     def evaluate_each(self, meshes: list[trimesh.Trimesh], seeds: list[int],
-                      on_result: Callable[[int, CandidateResult], None]) -> list[CandidateResult]:
+                      on_result: Callable[[int, CandidateResult], None], race=None) -> list[CandidateResult]:
         """:meth:`evaluate`, calling ``on_result(i, result)`` as soon as mesh ``i``'s trials are all in.
 
         The red-team loop scores a whole population in one call this way and journals each candidate
         as it finishes, so a killed run loses little. This default calls back after :meth:`evaluate`,
         in order; :class:`grt.evaluators.sim.SimEvaluator` calls back while the other meshes still run.
+        ``race`` (:class:`grt.racing.Race`): stop a mesh's trials in rounds once it cannot matter
+        (:class:`~grt.evaluators.sim.SimEvaluator` does); this default runs every trial, which is always
+        correct (a full-trial result is what racing would have kept for a candidate that matters).
         """
         results = self.evaluate(meshes, seeds)
         for i, result in enumerate(results):

@@ -399,13 +399,14 @@ class WorkerPool:
             self.workers.append(self._spawn())
 
     def run(self, jobs: list[Job], on_trial: Callable[[Job, TrialOutcome, float], None]) -> None:
-        """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order.
+        """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order. A ``deque`` of jobs is
+        the pool's queue itself: ``on_trial`` may add jobs to it (racing: a candidate's next round).
 
         Raises:
             grt.targets.ClassError: a worker cannot build its session (one line; the traceback in a file).
         """
         self.start()
-        pending, crashes = deque(jobs), {}
+        pending, crashes = jobs if isinstance(jobs, deque) else deque(jobs), {}
         while pending or any(w.job is not None for w in self.workers):
             self._assign(pending)
             self._poll(on_trial, pending, crashes)

@@ -311,11 +311,12 @@ class RayPool:
             self._poll(lambda *_: None, deque(), {})
 
     def run(self, jobs: list[Job], on_trial: Callable[[Job, TrialOutcome, float], None]) -> None:
-        """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order."""
+        """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order; ``on_trial``
+        may add jobs to a ``deque`` given as ``jobs`` (the pool's)."""
         self.start()
         self._geometry: dict[int, object] = {}
         self._careful = set()
-        pending, crashes = deque(jobs), {}
+        pending, crashes = jobs if isinstance(jobs, deque) else deque(jobs), {}
         try:
             while pending or any(a.job is not None for a in self.actors):
                 self._assign(pending)

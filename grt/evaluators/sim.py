@@ -14,6 +14,7 @@ import logging
 import math
 import socket
 import time
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -25,7 +26,7 @@ from grt.evaluators.base import CandidateResult, Evaluator
 from grt.evaluators.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
 from grt.evaluators.pool import Job, WorkerPool, sim_error
 from grt.tasks import session_class
-from grt.tasks.base import FALLBACK_TRIAL_TIMEOUT, TRIAL_TIMEOUT_MARGIN, TrialOutcome
+from grt.tasks.base import FALLBACK_TRIAL_TIMEOUT, SIM_ERROR, TRIAL_TIMEOUT_MARGIN, TrialOutcome
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +136,7 @@ class SimEvaluator(Evaluator):
 
     def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int],
                  parts: list[list[np.ndarray]] | None = None, policy: dict | None = None,
-                 on_result: Callable[[int, CandidateResult], None] | None = None) -> list[CandidateResult]:
+                 on_result: Callable[[int, CandidateResult], None] | None = None, race=None) -> list[CandidateResult]:
         """Score every mesh on the same seeds; see :meth:`grt.evaluators.base.Evaluator.evaluate`.
 
         ``parts`` gives each mesh's convex parts when the caller already has them (else they are made).
@@ -144,6 +145,10 @@ class SimEvaluator(Evaluator):
         ``on_result(i, result)``: called as soon as mesh ``i``'s trials are all in, while the others run.
         Every mesh's trials go to the workers together (the first mesh's first), so a call of several
         meshes keeps up to ``len(meshes) x len(seeds)`` workers busy.
+        ``race`` (:class:`grt.racing.Race`, ``budget.racing``): each mesh's seeds run in rounds, in order,
+        the rounds ending at ``race.at``; after each, ``race.stop(scores, errors)`` may stop the mesh (its
+        result then holds the trials run and ``info["race"]``), which frees its workers for the next round's
+        or the next mesh's seeds. A verdict depends only on the mesh's own trials, never on timing.
         """
         seeds = [int(s) for s in seeds]
         if not seeds:
@@ -153,35 +158,53 @@ class SimEvaluator(Evaluator):
         if parts is not None and len(parts) != len(meshes):
             raise ValueError(f"parts must give one list per mesh ({len(meshes)}), got {len(parts)}")
         parts, errors = self._collision_parts(meshes) if parts is None else (list(parts), {})
-        jobs = self._jobs(meshes, parts, seeds)
-        for job in jobs:
-            job.policy = policy
+        ends = [*race.at, len(seeds)] if race is not None else [len(seeds)]  # where each round ends
+        jobs = self._jobs(meshes, parts, seeds[:ends[0]], policy, self.chunk_size if race is None else None)
         trials: list[dict[int, TrialOutcome]] = [{} for _ in meshes]
         wall = np.zeros(len(meshes))
         results: list[CandidateResult | None] = [None] * len(meshes)
+        rounds = [0] * len(meshes)
 
-        def finish(i: int) -> None:
-            results[i] = CandidateResult.from_trials([trials[i][s] for s in seeds], wall[i],
-                                                     {"collision": self.collision_kind, "parts": len(parts[i])})
+        def finish(i: int, n: int, verdict: dict | None = None) -> None:
+            info = {"collision": self.collision_kind, "parts": len(parts[i])}
+            if race is not None:
+                info["race"] = {"trials": n, "of": len(seeds), **(verdict or {"stopped": None})}
+            results[i] = CandidateResult.from_trials([trials[i][s] for s in seeds[:n]], wall[i], info)
             if on_result is not None:
                 on_result(i, results[i])
 
         for i, reason in errors.items():
             trials[i] = {s: sim_error(s, reason) for s in seeds}
-            finish(i)
-        bar = self._progress_bar(sum(len(j.seeds) for j in jobs))
+            finish(i, len(seeds))
+        bar = self._progress_bar(len(meshes) * len(seeds) if race is not None else sum(len(j.seeds) for j in jobs))
+        pending = deque(jobs)
 
         def on_trial(job: Job, outcome: TrialOutcome, seconds: float) -> None:
-            trials[job.candidate][outcome.seed] = outcome
-            wall[job.candidate] += seconds
+            i = job.candidate
+            trials[i][outcome.seed] = outcome
+            wall[i] += seconds
             if bar is not None:
                 bar.update(1)
-            if results[job.candidate] is None and len(trials[job.candidate]) == len(seeds):
-                finish(job.candidate)
+            if results[i] is not None or len(trials[i]) != ends[rounds[i]]:
+                return
+            n = ends[rounds[i]]
+            verdict = None
+            if n < len(seeds):
+                ran = [trials[i][s] for s in seeds[:n]]
+                verdict = race.stop([t.score for t in ran if t.mode != SIM_ERROR],
+                                    errors=sum(t.mode == SIM_ERROR for t in ran))
+            if n == len(seeds) or verdict is not None:
+                finish(i, n, verdict)
+                return
+            rounds[i] += 1  # its next round goes first: earlier candidates finish (and are journaled) sooner
+            more = self._jobs([meshes[i]], [parts[i]], seeds[n:ends[rounds[i]]], policy, None, first_id=self._ids)
+            for j in more:
+                j.candidate = i
+            pending.extendleft(reversed(more))
 
         start = time.perf_counter()
         try:
-            self.pool.run(jobs, on_trial)
+            self.pool.run(pending, on_trial)
         finally:
             self.run_s = time.perf_counter() - start
             if bar is not None:
@@ -189,9 +212,9 @@ class SimEvaluator(Evaluator):
         return results
 
     def evaluate_each(self, meshes: list[trimesh.Trimesh], seeds: list[int],
-                      on_result: Callable[[int, CandidateResult], None]) -> list[CandidateResult]:
+                      on_result: Callable[[int, CandidateResult], None], race=None) -> list[CandidateResult]:
         """:meth:`evaluate` with a call-back per mesh as its trials finish (the others still running)."""
-        return self.evaluate(meshes, seeds, on_result=on_result)
+        return self.evaluate(meshes, seeds, on_result=on_result, race=race)
 
     def collision_parts(self, mesh: trimesh.Trimesh) -> list[np.ndarray]:
         """The convex parts this evaluator simulates ``mesh`` with (cached, so cheap after evaluate)."""
@@ -216,8 +239,10 @@ class SimEvaluator(Evaluator):
         self.collision_s += time.perf_counter() - start
         return parts, errors
 
-    def _jobs(self, meshes: list[trimesh.Trimesh], parts: list[list[np.ndarray]], seeds: list[int]) -> list[Job]:
-        size = self.chunk_size or math.ceil(len(seeds) / self.workers)
+    def _jobs(self, meshes: list[trimesh.Trimesh], parts: list[list[np.ndarray]], seeds: list[int],
+              policy: dict | None, chunk_size: int | None, first_id: int = 0) -> list[Job]:
+        """Each mesh's ``seeds`` cut into jobs of ``chunk_size`` (``None``: spread over the workers)."""
+        size = chunk_size or math.ceil(len(seeds) / self.workers)
         if self.render_dir:
             Path(self.render_dir).mkdir(parents=True, exist_ok=True)
         jobs = []
@@ -226,8 +251,10 @@ class SimEvaluator(Evaluator):
                 continue
             meta = {k: v for k, v in mesh.metadata.items() if isinstance(v, str | int | float)}
             for lo in range(0, len(seeds), size):
-                jobs.append(Job(len(jobs), i, np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces),
-                                parts[i], list(seeds[lo:lo + size]), self.render_dir, meta))
+                jobs.append(Job(first_id + len(jobs), i, np.asarray(mesh.vertices, np.float64),
+                                np.asarray(mesh.faces), parts[i], list(seeds[lo:lo + size]), self.render_dir, meta,
+                                policy))
+        self._ids = first_id + len(jobs)  # job ids stay unique within one evaluate call
         return jobs
 
     def _progress_bar(self, total: int):

@@ -242,6 +242,13 @@ def search_svg(records: list[dict], score: ScoreSpec, width: int = 560, height: 
         its = [r for r in records if r["iteration"] == t]
         for r in its:
             jitter = 0.25 * (r["candidate"] / max(len(its) - 1, 1) - 0.5) * (x(1) - x(0)) if iters else 0
+            race = r.get("race") or {}
+            if race.get("stopped") and race.get("score") == race.get("score"):  # raced out: its partial mean, hollow
+                out.append(f"<circle cx='{x(t) + jitter:.1f}' cy='{y(race['score']):.1f}' r='3' fill='none' "
+                           f"stroke='#1565c0' stroke-opacity='0.55'><title>it{t}_c{r['candidate']}: stopped by racing "
+                           f"after {race['trials']} of {race['of']} trials ({esc(race['stopped'])}), "
+                           f"{score.fmt(race['score'], unit=True)} over them</title></circle>")
+                continue
             if r["score"] != r["score"]:
                 out.append(f"<text x='{x(t) + jitter:.1f}' y='{height - 33}' font-size='9' fill='#999' "
                            f"text-anchor='middle'>×<title>it{t}_c{r['candidate']}: refused (implausible)</title></text>")

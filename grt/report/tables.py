@@ -120,7 +120,8 @@ def score_cell(r: dict, key: str) -> str:
 
 def method(r: dict) -> str:
     """The paper's row label: handles + search, ``+ SS`` under a Smoothness-Score budget."""
-    return f"{r['selector']} + {r['optimizer']}" + (" + SS" if r.get("tau") is not None else "")
+    return f"{r['selector']} + {r['optimizer']}" + (" + SS" if r.get("tau") is not None else "") + \
+        (" + racing" if r.get("racing") else "")
 
 
 def aggregate(rows: list[dict]) -> list[dict]:
@@ -278,6 +279,10 @@ def render(root: Path, records: bool = False) -> str:
         raise ReportError(f"no summary.json (or summary_<name>.json, table3*.json) under {root}: is it a finished "
                           "GRT run folder?")
     parts = [markdown(rows, aggregate(rows), failed)] if rows or failed else []
+    from grt.report.search import markdown as search_markdown
+
+    if search := search_markdown(rows):  # runs with trial counts: the search benchmark's table (issue 39)
+        parts.append("Simulator trials per method (mean [95% interval] over runs):\n\n" + search)
     parts += [table3_markdown(path, t, root) for path, t in tables]
     if records and rows:
         parts.append(records_markdown(rows, root))

@@ -265,3 +265,20 @@ def test_grasp_trials_equal_the_pools_bit_for_bit(tmp_path):
 def _timeless(trial: dict) -> dict:
     """A trial record without its timings (``info``'s ``*_s``: capture, planning, simulation, wall)."""
     return {**trial, "info": {k: v for k, v in trial["info"].items() if not k.endswith("_s")}}
+
+
+def test_racing_on_ray_stops_candidates_as_the_pool_does(toy_configs, u_mesh, u_deformed, reference, cache_dir,
+                                                         local_ray):
+    """A raced evaluation on Ray actors: the same trials as the pool's racing (the seeds' first rounds), and the
+    rounds after a stop never run (issue 39)."""
+    from tests.evaluators.test_racing import StopAt
+
+    task, policy = toy_configs()
+    with RayEvaluator(task, policy, workers=2, address="local", nominal=u_mesh, progress=False,
+                      cache_dir=str(cache_dir)) as ev:
+        ev.start(say=None)
+        results = ev.evaluate([u_mesh, u_deformed], SEEDS, race=StopAt(when=4))
+        info = ev.backend_info()
+    assert _modes(results) == [trials[:4] for trials in _modes(reference)]
+    assert sum(info["trials_per_node"].values()) == 2 * 4
+    assert [r.info["race"]["trials"] for r in results] == [4, 4]

@@ -43,7 +43,7 @@ class ToyEvaluator(Evaluator):
         self.volume = float(nominal.volume)
         self.nominal = np.asarray(nominal.vertices)
         self.coin, self.bar_mm = coin, bar_mm
-        self.calls = 0
+        self.calls = self.trials = 0
 
     def _ok(self, mesh, seed: int) -> bool:
         if self.coin is not None:
@@ -58,9 +58,10 @@ class ToyEvaluator(Evaluator):
     def evaluate(self, meshes, seeds):
         return self.evaluate_each(meshes, seeds, lambda i, result: None)
 
-    def evaluate_each(self, meshes, seeds, on_result):
+    def evaluate_each(self, meshes, seeds, on_result, race=None):
         """One mesh after the other, each called back before the next starts (as the simulator's evaluator
-        calls back a population's candidates while the others run); ``calls`` counts meshes."""
+        calls back a population's candidates while the others run); ``calls`` counts meshes. ``race``: its
+        trials in rounds, as :class:`grt.evaluators.sim.SimEvaluator` runs them; ``trials`` counts trials."""
         out = []
         for i, mesh in enumerate(meshes):
             self.calls += 1
@@ -69,9 +70,16 @@ class ToyEvaluator(Evaluator):
             hold, end = os.environ.get("GRT_TEST_HOLD_FILE"), time.monotonic() + 120
             while hold and self.calls > 1 and os.path.exists(hold) and time.monotonic() < end:
                 time.sleep(0.05)
-            trials = [TrialOutcome(s, float(ok), ok, "success" if ok else "missed")
-                      for s in seeds for ok in [self._ok(mesh, s)]]
-            out.append(CandidateResult.from_trials(trials, wall_s=0.0))
+            trials, info = [], {}
+            for end in [*(race.at if race is not None else ()), len(seeds)]:
+                trials += [TrialOutcome(s, float(ok), ok, "success" if ok else "missed")
+                           for s in seeds[len(trials):end] for ok in [self._ok(mesh, s)]]
+                verdict = race.stop([t.score for t in trials]) if race is not None and end < len(seeds) else None
+                if race is not None and (verdict is not None or end == len(seeds)):
+                    info["race"] = {"trials": end, "of": len(seeds), **(verdict or {"stopped": None})}
+                    break
+            self.trials += len(trials)
+            out.append(CandidateResult.from_trials(trials, wall_s=0.0, info=info))
             on_result(i, out[-1])
         return out
 

@@ -43,10 +43,13 @@ def test_option_composes_and_resolves(group, option, tmp_path):
 
 def test_optimizer_config_name_matches_class_and_file():
     for name in options("optimizer"):
-        target = OmegaConf.load(CONF / "optimizer" / f"{name}.yaml")["_target_"]
-        module, cls = target.rsplit(".", 1)
-        assert module == f"grt.optimizers.{name}", target
-        assert cls.lower().replace("optimizer", "") == name.replace("_", ""), target
+        node = OmegaConf.load(CONF / "optimizer" / f"{name}.yaml")
+        if "_target_" not in node:  # a variant is a YAML alone: its parent option's file and class, one setting changed
+            name = node.defaults[0]
+            node = OmegaConf.load(CONF / "optimizer" / f"{name}.yaml")
+        module, cls = node["_target_"].rsplit(".", 1)
+        assert module == f"grt.optimizers.{name}", node["_target_"]
+        assert cls.lower().replace("optimizer", "") == name.replace("_", ""), node["_target_"]
 
 
 def test_budget_typo_fails_at_compose_time_naming_the_key():
@@ -68,4 +71,6 @@ def test_task_carries_its_default_object():
 @pytest.mark.parametrize("exp", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))
 def test_experiment_configs_compose(exp):
     cfg = compose_run([f"experiment={exp}"])
-    assert cfg.budget.population == 10 and cfg.budget.iterations == 10
+    # the paper's tables keep the paper's budget; issue 39's search benchmark is sized for a 2-core machine
+    paper = (cfg.budget.population, cfg.budget.iterations) == (10, 10)
+    assert paper if exp != "search" else (cfg.budget.population, cfg.budget.iterations, cfg.budget.trials) == (4, 4, 8)
