@@ -99,7 +99,7 @@ def test_multirun_goes_on_after_a_failing_job(tmp_path):
     proc = _cli(["-m", *FAST, *SWEEP_JOB, "object=no_such_object,can", f"hydra.sweep.dir={tmp_path}"])
     out, _ = proc.communicate(timeout=600)
     assert proc.returncode == 1, out  # the sweep went on, and its command says a job failed (grt/cli/sweeps.py)
-    assert f"error: 1 of 2 jobs of the sweep failed: 0_heuristic-topdm (error: {tmp_path}/0_heuristic-topdm" in out
+    assert f"error: 1 of 2 jobs of the sweep failed: 0_antipodal_heuristic-topdm (error: {tmp_path}/0_antipodal_heuristic-topdm" in out
     errors = list(tmp_path.rglob("error.txt"))
     summaries = list(tmp_path.rglob("summary.json"))
     assert len(errors) == 1 and "no_such_object" in errors[0].read_text()
