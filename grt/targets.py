@@ -65,20 +65,21 @@ def check_targets(cfg) -> None:
         check_target(key, node)
 
 
-def check_target(key: str, node, arguments: bool = True) -> object:
+def check_target(key: str, node, arguments: bool = True) -> None:
     """Import ``node._target_`` and check that it takes every key of ``node`` as an argument (``arguments``).
-
-    Returns:
-        The class or function the node names.
 
     Raises:
         ClassError: a module or class that does not import (naming both, and how to make it importable),
             or an argument the class does not take (listing those it takes).
     """
     target = str(node["_target_"])
-    obj = locate(target, key)
     given = [str(k) for k in node if k not in HYDRA_KEYS]
-    params = _parameters(obj) if arguments else None
+    params = _source_parameters(target)  # GRT's own simulator classes: read, not imported (seconds a command)
+    if params is _UNREAD:
+        obj = locate(target, key)
+        params = _parameters(obj) if arguments else None
+    elif not arguments:
+        params = None
     if params is not None:
         for name in given:
             if name not in params:
@@ -86,7 +87,6 @@ def check_target(key: str, node, arguments: bool = True) -> object:
                 hint = f"; did you mean {key}.{close[0]}?" if close else ""
                 takes = ", ".join(params) if params else "no arguments"
                 raise ClassError(f"{describe(key, target)} takes no argument {name!r} (it takes: {takes}){hint}")
-    return obj
 
 
 def locate(target: str, key: str = "_target_") -> object:
@@ -128,6 +128,41 @@ def locate(target: str, key: str = "_target_") -> object:
         return obj
     raise ClassError(f"{key}._target_={target}: Python cannot import the module {missing!r}; {HOW_TO_IMPORT}")
 
+
+#: :func:`_source_parameters` could not read the class from its source: import it.
+_UNREAD = object()
+
+
+def _source_parameters(target: str):
+    """The keyword arguments of one of GRT's own classes (``grt.tasks.grasp.GraspSession``), read from its
+    module's source without importing it, or :data:`_UNREAD`.
+
+    Importing a task session imports the simulator (2-3 s), which a command that refuses its input in its
+    first second should not wait for; GRT's own modules import by construction, so what is left to check is
+    the keys. Read only where the class is defined in that module with an ``__init__`` of its own (``None``:
+    it takes ``**kwargs``); anything else, or a module already imported, is left to :func:`locate`.
+    """
+    import ast
+    import importlib.util
+    import sys
+
+    module, _, name = target.rpartition(".")
+    if not module.startswith("grt.") or module in sys.modules:
+        return _UNREAD
+    try:
+        spec = importlib.util.find_spec(module)
+        source = spec.loader.get_source(module) if spec is not None and spec.loader is not None else None
+        tree = ast.parse(source) if source else None
+    except (ImportError, ValueError, SyntaxError, AttributeError):
+        return _UNREAD
+    cls = next((n for n in (tree.body if tree else []) if isinstance(n, ast.ClassDef) and n.name == name), None)
+    init = next((n for n in (cls.body if cls else []) if isinstance(n, ast.FunctionDef) and n.name == "__init__"),
+                None)
+    if init is None:
+        return _UNREAD
+    if init.args.kwarg is not None:
+        return None
+    return [a.arg for a in [*init.args.posonlyargs, *init.args.args][1:] + init.args.kwonlyargs]
 
 def build(node, key: str, **kwargs):
     """Instantiate ``node`` as Hydra does; a ``_partial_`` node is then called with ``kwargs`` (the arguments

@@ -7,7 +7,7 @@
 set -euo pipefail
 OUT=${OUT:-outputs/search}
 PY=${PY:-python}
-OBJECTS=mug,bottle,can,hammer,banana
+OBJECTS=${OBJECTS:-mug,bottle,can,hammer,banana}   # OBJECTS=hammer,banana: only those
 case "$1" in
   grasp)
     # one object at a time, all five methods on it, so that a partial sweep compares like with like
