@@ -11,11 +11,11 @@ motionplanning:      ## also ManiSkill's motion planners (policy=motion_planner)
 demo: setup          ## red-team the default object (grasp task, budget=quick)
 	$(PY) -m grt.run
 
-test: motionplanning ## the whole test suite (what CI runs; with the motion planners' numpy, ~4 s and 79 MB)
-	$(PY) -m pytest -q
+test: motionplanning ## the whole test suite (what CI runs; with the motion planners' numpy, ~4 s and 79 MB), two files at a time
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 test-fast: motionplanning  ## skip the slow simulation tests
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
 
 lint:
 	$(PY) -m ruff check grt tests scripts

@@ -24,8 +24,10 @@ def label(r: dict) -> str:
     return f"{r['optimizer']}{' + racing' if r.get('racing') else ''}"
 
 
-def _interval(values: list[float]) -> tuple[float, float, float]:
-    """Mean and its 95% Student-t interval (the mean twice for a single value; NaNs without values)."""
+def _interval(values: list[float], low: float = 0.0, high: float = math.inf) -> tuple[float, float, float]:
+    """Mean and its 95% Student-t interval, cut to what the figure can be (``[low, high]``: a Final Drop of
+    three runs at 0, 100 and 100% is 66.7 [0.0, 100.0], not [-77, 210]; never narrower than the values seen);
+    the mean twice for a single value, NaNs without values."""
     from scipy import stats
 
     v = np.asarray([x for x in values if x is not None and not (isinstance(x, float) and math.isnan(x))], float)
@@ -34,7 +36,8 @@ def _interval(values: list[float]) -> tuple[float, float, float]:
     if v.size == 1:
         return (float(v[0]),) * 3
     half = float(stats.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
-    return float(v.mean()), float(v.mean() - half), float(v.mean() + half)
+    low, high = min(low, float(v.min())), max(high, float(v.max()))
+    return float(v.mean()), max(low, float(v.mean() - half)), min(high, float(v.mean() + half))
 
 
 def groups(rows: list[dict]) -> dict[tuple[str, str, str], list[dict]]:
@@ -66,7 +69,7 @@ def markdown(rows: list[dict]) -> str:
         have = [x for x in first if x is not None]
         cells = [_cell(_interval([r["trials_used"] for r in rs]), "{:.0f}"), ratio,
                  _cell(_interval(have), "{:.0f}") + f" ({len(have)}/{len(rs)})",
-                 _cell(_interval([r["final_drop"] * 100 for r in rs]), "{:.1f}"),
+                 _cell(_interval([r["final_drop"] * 100 for r in rs], high=100.0), "{:.1f}"),
                  _cell(_interval([r["auc"] for r in rs]), "{:.2f}")]
         lines.append(f"| {task} | {policy} | {method} | {len(rs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -99,7 +102,7 @@ def plot(rows: list[dict], path: Path) -> Path:
             length = min(len(r["trials_curve"]) for r in rs)
             x = np.mean([r["trials_curve"][:length] for r in rs], axis=0)
             ys = np.array([[c if c is not None else np.nan for c in r["curve"][:length]] for r in rs], float) * 100
-            stats = [_interval(list(col)) for col in ys.T]
+            stats = [_interval(list(col), high=100.0) for col in ys.T]
             mean, low, high = (np.array(v) for v in zip(*stats, strict=True))
             line, = ax.plot(x, mean, "-o", ms=3, label=f"{method} ({len(rs)} runs)")
             ax.fill_between(x, low, high, color=line.get_color(), alpha=0.12)

@@ -44,3 +44,13 @@ def test_search_figures_count_the_trials_each_candidate_ran():
     got = search_figures(records, confirm)
     assert got == {"trials_used": 14, "trials_curve": [4, 6, 14], "trials_to_first_confirmed": 14,
                    "trials_to_first_crash": 10}
+
+
+def test_an_interval_stays_within_what_the_figure_can_be(tmp_path):
+    for seed, drop in enumerate((0.0, 1.0, 1.0)):  # three runs: a t-interval of the mean is [-77, 210]%
+        (tmp_path / f"summary_mug_base_s{seed}.json").write_text(json.dumps(
+            _summary("topdm", False, seed, 100, drop, None)))
+    text = render(tmp_path).split("Simulator trials per method")[1]
+    row = next(line for line in text.splitlines() if line.startswith("| grasp | antipodal | topdm |"))
+    assert "66.7 [0.0, 100.0]" in row  # the Final Drop column: a percentage of S0
+    assert "2.00 [0.00," in row  # AUC: not below zero either
