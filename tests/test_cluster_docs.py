@@ -18,7 +18,7 @@ def _bash_blocks(text: str) -> list[list[str]]:
 
 def test_every_docs_block_that_joins_a_cluster_exports_the_token_mode_first():
     checked = 0
-    for page in sorted(DOCS.glob("*.md")):
+    for page in [*sorted(DOCS.glob("*.md")), DOCS.parent / "README.md"]:
         for lines in _bash_blocks(page.read_text()):
             first = next((i for i, line in enumerate(lines) if JOINS.search(line.split("#")[0])), None)
             if first is None:
@@ -26,4 +26,4 @@ def test_every_docs_block_that_joins_a_cluster_exports_the_token_mode_first():
             checked += 1
             assert any(line.startswith("export RAY_AUTH_MODE=token") for line in lines[:first]), \
                 (page.name, lines)
-    assert checked >= 1  # docs/cluster.md's first snippet
+    assert checked >= 2  # docs/cluster.md's first snippet and the README's
