@@ -8,7 +8,7 @@ evaluated again (its stored theta must match the replayed one, which catches a c
 
 from __future__ import annotations
 
-import inspect
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,14 +24,11 @@ from grt.optimizers.base import Optimizer
 from grt.optimizers.smoothness import project_to_budget, smoothness_score
 from grt.racing import Racing, search_score, stopped
 
+log = logging.getLogger(__name__)
+
 if TYPE_CHECKING:
     from grt.evaluators.base import Evaluator
     from grt.geometry.deform import ShapeDeformer
-
-
-def _races(evaluator) -> bool:
-    """Whether ``evaluator.evaluate_each`` takes ``race`` (an evaluator written before racing runs every trial)."""
-    return "race" in inspect.signature(evaluator.evaluate_each).parameters
 
 
 def episode_seeds(seed: int, trials: int) -> list[int]:
@@ -94,6 +91,10 @@ class RedTeamLoop:
         self.tau, self.complexity, self.ci = tau, complexity, ci
         self.on_candidate, self.on_iteration, self.on_nominal = on_candidate, on_iteration, on_nominal
         self.validity, self.racing = validity, racing
+        if racing is not None and not getattr(evaluator, "races", False):
+            log.warning("budget.racing=true: %s runs every trial of a candidate (it cannot stop one early), "
+                        "so this run races nothing; evaluator=sim or evaluator=ray race", type(evaluator).__name__)
+            self.racing = None
         self.evaluations = 0
 
     def run(self) -> RedTeamResult:
@@ -196,7 +197,7 @@ class RedTeamLoop:
                 finish(k, None)
         if sim:
             meshes, on_result = [todo[k][2] for k in sim], lambda j, result: finish(sim[j], result)
-            if self.racing is not None and t > 0 and _races(self.evaluator):  # the nominal runs every trial
+            if self.racing is not None and t > 0:  # the nominal runs every trial
                 race = self.racing.for_iteration(len(self.seeds), self._s0, self.journal.records, t)
                 self.evaluator.evaluate_each(meshes, self.seeds, on_result, race=race)
             else:

@@ -99,6 +99,10 @@ def check_scored(result: CandidateResult, what: str) -> None:
 class Evaluator(ABC):
     """Scores candidate meshes by simulated trials of a policy. Use as a context manager."""
 
+    #: Whether :meth:`evaluate_each` stops a candidate's trials early when given ``race`` (``budget.racing``);
+    #: one that does not runs every trial, and a run that asked for racing says so.
+    races = False
+
     @abstractmethod
     def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int]) -> list[CandidateResult]:
         """Score every mesh on the same episode seeds.

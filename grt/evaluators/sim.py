@@ -75,6 +75,8 @@ class SimEvaluator(Evaluator):
         render_dir: write one picture per trial there when the session has ``render(path)``.
     """
 
+    races = True
+
     def __init__(self, task: dict, policy: dict, workers: int = 2, collision: str = "fast",
                  nominal: trimesh.Trimesh | None = None, coacd: dict | None = None,
                  cache_dir: str | None = None, max_hull_vertices: int = MAX_HULL_VERTICES,

@@ -39,6 +39,8 @@ class ToyTaskSession(TaskSession):
 class ToyEvaluator(Evaluator):
     """Trial ``seed`` succeeds when the candidate keeps more of the nominal volume than a seeded bar."""
 
+    races = True  # evaluate_each runs a candidate in rounds when given race
+
     def __init__(self, nominal, coin: float | None = None, bar_mm: float | None = None, **_):
         self.volume = float(nominal.volume)
         self.nominal = np.asarray(nominal.vertices)

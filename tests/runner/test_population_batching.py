@@ -88,3 +88,19 @@ def test_candidates_finished_out_of_order_are_journaled_in_order(tmp_path):
     assert ev.lines_seen == [0] + [1 + 4 * t for t in range(3) for _ in range(4)]
     plain = _loop(tmp_path, CallCounter()).run()
     assert got.iteration_scores == plain.iteration_scores and got.best_score == plain.best_score
+
+
+
+def test_racing_asked_of_an_evaluator_that_cannot_race_is_said_and_every_trial_runs(tmp_path, caplog):
+    from grt.racing import Racing
+
+    mesh = load_mesh("can")
+    hs = HeuristicSelector(k=4, seed=0).select(mesh, "")
+    loop = RedTeamLoop(ShapeDeformer(mesh, hs.handles, hs.anchors),
+                       TOPDMOptimizer(len(hs.handles), population=4, sigma=0.02, seed=0), CallCounter(),
+                       Journal(tmp_path / "journal.jsonl"), episode_seeds(0, 2), iterations=1,
+                       racing=Racing(2, 0.05, 3, 0.1))  # CallCounter: the base class's evaluate_each
+    assert "CallCounter runs every trial of a candidate" in caplog.text and "races nothing" in caplog.text
+    loop.run()
+    records = [json.loads(line) for line in (tmp_path / "journal.jsonl").read_text().splitlines()]
+    assert len(records) == 5 and all(len(r["trials"]) == 2 and "race" not in r for r in records)
