@@ -246,9 +246,10 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "validity_checked": any("valid" in r for r in records if r["iteration"] >= 1),
         "max_volume_change": cfg.deformer.get("max_volume_change") if cfg.deformer.get("validity") else None,
     }
-    if cfg.budget.get("racing"):  # what racing saved; the metrics above count full-trial candidates only
-        raced = [r for r in records if r["iteration"] >= 1 and r.get("race")]
-        summary["racing"] = {
+    raced = [r for r in records if r["iteration"] >= 1 and r.get("race")]
+    cannot_race = bool(cfg.budget.get("racing")) and not raced and not getattr(evaluator, "races", False)
+    if cfg.budget.get("racing") and not cannot_race:  # what racing saved; the metrics above count full-trial
+        summary["racing"] = {  # candidates only
             "rounds": cfg.budget.race_rounds, "alpha": cfg.budget.race_alpha, "top_k": cfg.budget.top_k,
             "stopped": sum(stopped(r) for r in raced), "full": sum(not stopped(r) for r in raced),
             "trials_all": len(next(r for r in records if r["iteration"] == 0)["trials"]) * (1 + len(raced)),
@@ -258,6 +259,9 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         summary["confirm"] = confirmation
         summary["confirmed_final_drop"] = confirmation["confirmed_final_drop"]
     notes = []
+    if cannot_race:  # RedTeamLoop said so in the log; the record says it too, and nothing counts as raced
+        notes.append(f"budget.racing=true: {type(evaluator).__name__} runs every trial of a candidate, so "
+                     "nothing was raced")
     if not result.s0 > 0:
         notes.append(f"S0 = {score.fmt(result.s0, unit=True)}: the policy already fails on the nominal "
                      "object; relative drops need a positive S0 and are undefined")

@@ -41,7 +41,8 @@ class ToyEvaluator(Evaluator):
 
     races = True  # evaluate_each runs a candidate in rounds when given race
 
-    def __init__(self, nominal, coin: float | None = None, bar_mm: float | None = None, **_):
+    def __init__(self, nominal, coin: float | None = None, bar_mm: float | None = None, races: bool = True, **_):
+        self.races = races  # ``+evaluator.races=false``: an evaluator that cannot race (a user's, the GPU's)
         self.volume = float(nominal.volume)
         self.nominal = np.asarray(nominal.vertices)
         self.coin, self.bar_mm = coin, bar_mm

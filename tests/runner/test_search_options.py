@@ -94,3 +94,17 @@ def test_a_library_optimizer_with_racing_resumes_after_a_kill_with_nothing_repea
     simulated = [r for r in _journal(cut)[1:] if r["trials"]]
     assert all(r["race"]["trials"] == len(r["trials"]) for r in simulated)
     assert summary["racing"]["stopped"] + summary["racing"]["full"] == len(simulated)
+
+
+def test_racing_asked_of_an_evaluator_that_cannot_race_is_recorded_as_nothing_raced(tmp_path):
+    """budget.racing=true on an evaluator that runs every trial of a candidate: the log says so, and the
+    summary neither labels the run as raced nor counts trials it did not save; its note says why."""
+    from grt.report.tables import method
+    from grt.runner import run
+
+    args = ["budget=smoke", "budget.racing=true", "budget.trials=4", "budget.sigma=0.03", "budget.iterations=1",
+            "object=can", "selector.k=3", *TOY, "+evaluator.races=false", f"paths.output_dir={tmp_path}"]
+    summary = run(compose_run(args))
+    assert "racing" not in summary and "nothing was raced" in summary["note"]
+    assert all("race" not in r and len(r["trials"]) == 4 for r in _journal(tmp_path) if r["trials"])
+    assert "racing" not in method(summary)
