@@ -83,6 +83,20 @@ def test_a_job_that_dies_is_one_line_and_the_same_sweep_again_goes_on_from_its_j
     assert "resuming" in (job / "run.log").read_text()
 
 
+def test_a_sweep_run_again_is_judged_by_its_own_jobs_not_an_earlier_sweeps_leftovers(tmp_path):
+    # an earlier sweep's unfinished job under a job name GRT no longer makes (before the policy was in it): the
+    # same sweep again runs its job under today's name and succeeds; the leftover is named, not a failure
+    old = tmp_path / "0_heuristic-topdm"
+    old.mkdir()
+    (old / "run_config.yaml").write_text("task: grasp\n")  # a run's record, no summary.json: never finished
+    (old / "journal.jsonl").write_text("")
+    res = _cli("-m", "budget=smoke", "selector.k=3", "budget.trials=2", *TOY, f"hydra.sweep.dir={tmp_path}")
+    assert res.returncode == 0 and "error:" not in res.stderr, res.stderr[-3000:]
+    assert (tmp_path / "0_antipodal_heuristic-topdm" / "summary.json").is_file()
+    assert ("1 job folder of an earlier sweep here, not run by this one, did not finish: 0_heuristic-topdm"
+            in res.stdout)
+
+
 def _launcher(config_name: str, overrides: list[str]):
     """The launcher Hydra makes for ``python -m grt.<app> -m <overrides>`` (instantiated as Hydra does)."""
     GlobalHydra.instance().clear()
