@@ -54,10 +54,36 @@ def grasp_smoke_run(tmp_path_factory):
     """``(run folder, finished process)`` of one real ``python -m grt.run`` on the grasp task (``GRASP_SMOKE``),
     made once per session: a simulator start costs more than the whole smoke search, so the tests that read
     a real run's folder (artifacts, replay) or its piped output (the log) share this one."""
-    run_dir = tmp_path_factory.mktemp("grasp_smoke") / "run"
-    proc = _grt_piped("grt.run", *GRASP_SMOKE, f"hydra.run.dir={run_dir}")
+    return _once(tmp_path_factory, "grasp_smoke", lambda folder: _grt_piped(
+        "grt.run", *GRASP_SMOKE, f"hydra.run.dir={folder / 'run'}"), "run")
+
+
+def _once(tmp_path_factory, name: str, make, sub: str):
+    """``(folder / sub, finished process)`` of ``make(folder)`` (a piped ``python -m grt...``), made once per
+    test run: a session fixture is made once per pytest-xdist worker, so the workers share one folder of the
+    run's temporary root, the first one makes it under a file lock and the others read its recorded process."""
+    import json
+    import subprocess
+
+    from filelock import FileLock
+
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:  # one process: nobody to share with
+        folder = tmp_path_factory.mktemp(name)
+        proc = make(folder)
+    else:
+        root = tmp_path_factory.getbasetemp().parent  # the run's root, above each worker's own
+        folder, record = root / name, root / f"{name}.json"
+        with FileLock(str(root / f"{name}.lock")):
+            if record.exists():
+                proc = subprocess.CompletedProcess(**json.loads(record.read_text()))
+            else:
+                folder.mkdir(exist_ok=True)
+                proc = make(folder)
+                if proc.returncode == 0:
+                    record.write_text(json.dumps({"args": proc.args, "returncode": proc.returncode,
+                                                  "stdout": proc.stdout, "stderr": proc.stderr}))
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return run_dir, proc
+    return folder / sub, proc
 
 
 # A real evaluation of the can by the antipodal planner: two small cameras, 2 trials, 1 worker.
@@ -69,7 +95,5 @@ def grasp_evaluation(tmp_path_factory):
     """``(output folder, finished process)`` of one real ``python -m grt.evaluate GRASP_EVALUATION`` (progress
     on), piped; shared by the tests of its log, of its JSON line and of the same policy served
     (test_serve.py compares the served planner's trials with these)."""
-    out = tmp_path_factory.mktemp("grasp_evaluation") / "out"
-    proc = _grt_piped("grt.evaluate", *GRASP_EVALUATION, f"hydra.run.dir={out}")
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    return out, proc
+    return _once(tmp_path_factory, "grasp_evaluation", lambda folder: _grt_piped(
+        "grt.evaluate", *GRASP_EVALUATION, f"hydra.run.dir={folder / 'out'}"), "out")

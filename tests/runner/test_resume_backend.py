@@ -16,7 +16,7 @@ import pytest
 from grt.runfolder import ResumeError, resume_overrides
 
 ROOT = Path(__file__).resolve().parents[2]
-RUN = ["task=insertion", "policy=insertion_state", "budget=smoke", "budget.iterations=6"]
+RUN = ["task=insertion", "policy=insertion_state", "budget=smoke", "budget.iterations=3"]
 TIMING = ("wall_s", "sha256")  # a record's hash covers its wall time
 
 
