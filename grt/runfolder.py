@@ -818,7 +818,8 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
         FolderBusyError: another process holds the folder's lock.
         OutputError: the folder cannot be made or written.
     """
-    first_new = next((p for p in reversed([run_dir, *run_dir.parents]) if not p.exists()), None)
+    # absolute: discard_new gets Hydra's absolute output_dir, the callback may get a relative run.dir
+    first_new = next((p for p in reversed([run_dir.resolve(), *run_dir.resolve().parents]) if not p.exists()), None)
     hydra_files = {".hydra", log_file}
     before = set(os.listdir(run_dir)) if run_dir.is_dir() else set()
     try:
@@ -898,12 +899,14 @@ def _remove_new(run_dir: Path, first_new: Path | None) -> None:
     """Remove ``run_dir`` and the empty folders above it up to ``first_new`` (those this command made)."""
     if first_new is None:
         return
+    run_dir, first_new = Path(run_dir).resolve(), Path(first_new).resolve()
+    made = [run_dir, *run_dir.parents]
+    if first_new not in made:  # not a folder this command made above the run's: remove nothing
+        return
     shutil.rmtree(run_dir, ignore_errors=True)
-    for folder in [run_dir, *run_dir.parents]:
+    for folder in made[1:made.index(first_new) + 1]:
         with contextlib.suppress(OSError):
             folder.rmdir()  # only an empty one: a folder another run made meanwhile stays
-        if folder == first_new:
-            break
 
 
 class RunFolderCallback(Callback):

@@ -38,7 +38,7 @@ from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, t
 from grt.rl.vec_env import Shape, TaskVecEnv
 from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
 from grt.targets import build
-from grt.tasks import task_object
+from grt.tasks import TaskInputError, preflight, task_object
 
 log = logging.getLogger("grt.train")
 
@@ -57,6 +57,13 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
     logger = build(cfg.logger, "logger")
     mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir),
                      settings=MeshSettings.from_config(cfg.get("mesh")) if cfg.get("mesh") else None)
+    if expert is not None:  # an expert of another task (train=insertion_state on task=push_cube): one line
+        try:
+            preflight(plain(cfg.task), expert, mesh)
+        except TaskInputError as err:
+            raise TaskInputError(f"train.bc.expert (the warm start's expert of train={cfg.train.name}): {err}; "
+                                 "give a train config made for this task, or train.bc=null to start without "
+                                 "a warm start") from None
     collision = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64)  # as the evaluator
     parts = collision.parts(mesh)
     task, train_cfg = plain(cfg.task), plain(cfg.train)

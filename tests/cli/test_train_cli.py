@@ -81,3 +81,12 @@ def test_check_export(tmp_path):
         check_export({"export": str(tmp_path / "mine.onnx")})
     with pytest.raises(OutputError, match="does not exist"):
         check_export({"export": str(tmp_path / "no" / "mine.pt")})
+
+
+def test_a_train_config_whose_expert_is_another_tasks_is_one_line_before_any_simulation(tmp_path):
+    """``train=insertion_state`` (warm start from the insertion servo: 6 actions) on ``task=push_cube`` (4):
+    before, the worker processes died on a reshape and the command ended in a 100-line traceback."""
+    line = one_error_line(grt_train("task=push_cube", "train=insertion_state", cwd=tmp_path))
+    assert "train.bc.expert" in line and "ServoInsertionPolicy" in line and "takes 4 actions" in line, line
+    assert "train.bc=null" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no outputs/

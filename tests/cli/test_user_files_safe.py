@@ -9,6 +9,7 @@ one finished run made once for the module and copied for each test.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -234,3 +235,17 @@ def test_report_on_a_stopped_run_gives_a_resume_command_that_works_when_pasted(f
                          text=True, timeout=300, env=_env())
     assert res.returncode == 0, res.stderr[-3000:]
     assert journal.read_bytes().count(b"\n") == 7 and (run_dir / "summary.json").is_file()
+
+
+def test_a_refused_run_removes_only_the_folders_it_made_never_the_users_empty_ones_above(tmp_path):
+    """A refused ``grt.run`` removes the run folder it made (``outputs/<task>/...`` under the working folder) and
+    nothing above: an empty working folder, and an empty folder above it, stay. Before, the folders made
+    were noted relative and removed absolute, so every empty folder up the path went too."""
+    work = tmp_path / "empty_parent" / "work"
+    work.mkdir(parents=True)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "WANDB_MODE": "disabled"}
+    res = subprocess.run([sys.executable, "-m", "grt.run", "object=/no/such/mesh.obj"], cwd=work,
+                         capture_output=True, text=True, timeout=300, env=env)
+    assert res.returncode == 2 and "mesh file not found" in error_line(res.stderr, res.stdout)
+    assert "the new folder" in res.stderr and "was removed" in res.stderr
+    assert work.is_dir() and list(work.iterdir()) == []  # outputs/... made by the run: gone; the rest stays
