@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import difflib
 import os
 import signal
 import sys
@@ -36,6 +37,7 @@ from hydra.errors import (
     OverrideParseException,
     SearchPathException,
 )
+from omegaconf import DictConfig
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
 from grt import CONF_DIR
@@ -264,6 +266,10 @@ def _compose_error(exc: BaseException) -> str | None:
         return unknown_budget_key(key.split(".", 1)[1])
     if isinstance(cause, (ConfigKeyError, ConfigAttributeError)) and key.startswith("hydra.launcher."):
         return unknown_launcher_key(key, getattr(cause, "object_type", None))  # '+' would fail at launch
+    if isinstance(cause, (ConfigKeyError, ConfigAttributeError)) and isinstance(exc, ConfigCompositionException):
+        found = unknown_key(key, getattr(cause, "parent_node", None))
+        if found is not None:
+            return found
     text = one_line(str(exc))
     if text.startswith("Multiple values for ") and "override" in text:  # +GROUP=OPTION of a chosen group
         group = text.removeprefix("Multiple values for ").split(".")[0]
@@ -274,6 +280,23 @@ def _compose_error(exc: BaseException) -> str | None:
         text += "; " + one_line(str(cause))
     hint = budget_hint(key)
     return f"{text}; {hint}" if hint else text
+
+
+def unknown_key(full_key: str, parent) -> str | None:
+    """One line for ``a.b.KEY=V`` where the section ``a.b`` has no ``KEY`` (``optimizer.name=CMAA`` with
+    ``optimizer=nevergrad``, ``calibrate.trials=0``): the close names and the section's settings, instead of
+    Hydra's hint to add it with '+' (which would be refused as a key nothing reads). ``None`` where the
+    section is empty (a mapping meant for new keys, such as ``task.session.env_kwargs``): Hydra's hint fits."""
+    keys = [str(k) for k in parent if not str(k).startswith("_") and str(k) != "hydra"] \
+        if isinstance(parent, DictConfig) else []
+    if not full_key or not keys:
+        return None
+    section, _, name = full_key.rpartition(".")
+    close = difflib.get_close_matches(name, keys, n=3, cutoff=0.6)
+    text = f"{full_key} is not a setting of {section or 'the command'} (its keys are {', '.join(sorted(keys))})"
+    if close:
+        text += f"; did you mean {' or '.join(f'{section}.{c}' if section else c for c in close)}?"
+    return text
 
 
 def unknown_launcher_key(key: str, schema) -> str:

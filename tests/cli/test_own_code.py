@@ -196,6 +196,10 @@ def test_every_app_refuses_a_class_it_cannot_build_in_one_line_and_leaves_no_fol
                             "never used); deformer's keys are lam, max_volume_change, method, radius, validity; did "
                             "you mean deformer.lam?"),
     (["+foo=1"], "+foo: nothing reads foo (added with '+', it would be stored and never used); grt.run's keys are "),
+    (["deformer.lamda=2"], "deformer.lamda is not a setting of deformer (its keys are lam, max_volume_change, "
+                           "method, radius, validity); did you mean deformer.lam?"),  # without '+': Hydra's refusal
+    (["optimizer.sigmma=0.1"], "optimizer.sigmma is not a setting of optimizer (its keys are elite_frac, gamma, mu0, "
+                               "population, seed, sigma); did you mean optimizer.sigma"),  # TOPDM's
     (["deformer.method=foo"], "deformer.method='foo': use one of smooth, exact, apap"),
     (["selector.k=0"], "selector=heuristic (grt.selectors.heuristic.HeuristicSelector): building it raised "
                        "ValueError: k must be >= 1, got 0"),
