@@ -190,7 +190,8 @@ def _evaluate(cfg: DictConfig, policy_file: Path, mesh, out_dir: Path) -> dict:
     policy = {"_target_": "grt.policies.rsl_rl.RslRlPolicy", "checkpoint": str(policy_file), "task": cfg.task.name}
     seeds = episode_seeds(42, int(cfg.eval_trials))
     start = time.perf_counter()
-    with SimEvaluator(task=plain(cfg.task), policy=policy, workers=cfg.train.workers, nominal=mesh,
+    # train.workers=0 steps the training envs in this process; the evaluation needs a worker process
+    with SimEvaluator(task=plain(cfg.task), policy=policy, workers=max(1, int(cfg.train.workers)), nominal=mesh,
                       cache_dir=f"{cfg.paths.cache_dir}/coacd") as ev:
         res = ev.evaluate([mesh], seeds)[0]
     summary = {**res.summary(), "wall_s": time.perf_counter() - start}

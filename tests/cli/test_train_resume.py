@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import json
 import shutil
 from pathlib import Path
 
@@ -145,10 +146,13 @@ def hydra_record(folder: Path) -> dict[str, bytes]:
 @pytest.mark.slow
 def test_resume_with_a_free_override_goes_on_from_last_pt_with_the_trainings_own_task(training):
     start = hydra_record(training)
-    res = grt_train(f"resume={training}", "train.iterations=3", cwd=training.parent)
+    # eval_trials=1 with the training's train.workers=0 (its envs in this process): the final evaluation
+    # still gets a worker process (it once ended in "workers must be >= 1")
+    res = grt_train(f"resume={training}", "train.iterations=3", "eval_trials=1", cwd=training.parent)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert f"resuming {training} at iteration 2" in (training / "train.log").read_text()
     assert metrics(training) == [0, 1, 2] and "trained 3 iterations" in res.stdout
+    assert len(json.loads((training / "evaluation.json").read_text())["trials"]) == 1
     assert hydra_record(training) == start  # the record of the start, byte for byte
     composed = OmegaConf.load(training / ".hydra" / "resume" / "config.yaml")
     assert (composed.task.name, composed.train.name, composed.train.iterations) == ("drawer", "drawer_state", 3)
