@@ -870,6 +870,63 @@ def check_new_folder(run_dir: Path, before: set[str], app: str, log_file: str) -
                               f"give another folder ({flag}), or leave it out for a new one")
 
 
+def check_in_place(run_dir: Path, config: DictConfig, app: str) -> None:
+    """Refuse a ``grt.train`` (``grt.blueteam``) command without ``resume=`` whose ``hydra.run.dir`` holds a
+    training (a study) started with other settings: continued in place, it would go on from that folder's
+    ``last.pt`` with this command's settings and write Hydra's record of them over the record of its start.
+    The same command again (a requeued job), or one that changes only what a resume may change, goes on.
+
+    Raises:
+        ResumeError: names the settings that differ and the two ways on (``resume=DIR``, another folder).
+    """
+    if OmegaConf.select(config, "resume"):
+        return
+    if app == "train" and is_training_folder(run_dir):
+        noun, free, command = "training", lambda key: _under(key, TRAIN_FREE), "python -m grt.train"
+    elif app == "blueteam" and is_study_folder(run_dir):
+        noun, free, command = "study", lambda key: _under(key, STUDY_FREE) or _evaluator_free(key), \
+            "python -m grt.blueteam"
+    else:
+        return
+    try:
+        saved = _leaves(OmegaConf.to_container(OmegaConf.load(run_dir / ".hydra" / "config.yaml"), resolve=False))
+    except Exception:  # noqa: BLE001 - an unreadable record: the app's own resume checks name it
+        return
+    now = _leaves(OmegaConf.to_container(config, resolve=False))
+    changed = sorted(k for k in set(saved) | set(now) if not free(k) and k != "resume"
+                     and saved.get(k, _ABSENT) != now.get(k, _ABSENT))
+    changed = [k for k in changed if not any(k.startswith(f"{c}.") for c in changed)]  # train.bc, not its keys
+    if not changed:
+        return
+    release(run_dir)
+
+    def value(leaves: dict, key: str) -> str:
+        if key in leaves:
+            return _shown_value(leaves[key])
+        return "a mapping" if any(k.startswith(f"{key}.") for k in leaves) else "unset"
+
+    shown = ", ".join(f"{k} (the {noun}'s: {value(saved, k)}, this command's: {value(now, k)})"
+                      for k in changed[:4])
+    more = f" and {len(changed) - 4} more" if len(changed) > 4 else ""
+    raise ResumeError(f"hydra.run.dir={run_dir} holds a {noun} started with other settings: {shown}{more}; "
+                      f"continued in place it would go on from its last.pt with this command's. Continue it "
+                      f"with {command} resume={run_dir} (its own settings), or give a new folder for these")
+
+
+def _leaves(node, prefix: str = "") -> dict:
+    """A config's leaves by dotted key (lists kept whole), its ``hydra`` node left out."""
+    out = {}
+    for key, value in (node.items() if isinstance(node, dict) else ()):
+        path = f"{prefix}{key}"
+        if path == "hydra":
+            continue
+        if isinstance(value, dict) and value:
+            out.update(_leaves(value, f"{path}."))
+        else:
+            out[path] = value
+    return out
+
+
 def discard_new(run_dir: Path) -> str:
     """Remove what this command made for a run that saved nothing (the folder holds only Hydra's files):
     the folder it created, or its Hydra files in a folder that was there. Returns the words saying so
@@ -927,6 +984,7 @@ class RunFolderCallback(Callback):
         try:
             claim(run_dir, OmegaConf.select(config, "resume"), f"{config.hydra.job.name}.log",
                   str(config.hydra.job.name))
+            check_in_place(run_dir, config, str(config.hydra.job.name))
         except UserError as exc:
             print(f"error: {exc}", file=sys.stderr, flush=True)
             raise SystemExit(2) from None

@@ -184,3 +184,20 @@ def test_a_folder_whose_record_an_old_resume_rewrote_resumes_as_its_last_pt_was_
     log = (training / "train.log").read_text()
     assert "is the record of an earlier resume" in log and "(task drawer, train drawer_state" in log, log
     assert f"resuming {training} at iteration 2" in log and metrics(training) == [0, 1, 2]
+
+
+def test_a_new_command_in_a_training_folder_with_other_settings_is_refused_and_changes_nothing(training):
+    """Without ``resume=``, ``hydra.run.dir`` of a training continues it in place only with its own settings
+    (a requeued job's same command; the free keys may differ): before, another task's or warm start's
+    settings went on from its last.pt and Hydra's record of them replaced the record of the start."""
+    before = tree(training)
+    other = [o for o in FIRST if not o.startswith("train.num_envs=")] + ["train.num_envs=4"]
+    line = one_error_line(grt_train(*other, f"hydra.run.dir={training}", cwd=training.parent))
+    assert f"hydra.run.dir={training} holds a training started with other settings: train.num_envs (the " \
+           "training's: 2, this command's: 4)" in line, line
+    assert f"python -m grt.train resume={training}" in line, line
+    assert tree(training) == before  # not a byte: Hydra's record included
+    same = [o for o in FIRST if not o.startswith("train.iterations=")] + ["train.iterations=3"]  # a free key
+    res = grt_train(*same, f"hydra.run.dir={training}", cwd=training.parent)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert metrics(training) == [0, 1, 2]  # went on from last.pt
