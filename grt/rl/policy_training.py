@@ -32,13 +32,14 @@ from grt.evaluators.pool import build_session
 from grt.evaluators.sim import SimEvaluator
 from grt.geometry.mesh import load_mesh
 from grt.geometry.prepare import MeshSettings
+from grt.policies.base import POLICY_KINDS
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.redteam import episode_seeds
 from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train, write_json
 from grt.rl.vec_env import Shape, TaskVecEnv
 from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
 from grt.targets import build
-from grt.tasks import TaskInputError, preflight, task_object
+from grt.tasks import TaskInputError, preflight, session_class, task_object
 
 log = logging.getLogger("grt.train")
 
@@ -52,6 +53,7 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
             file that cannot be written (before any training).
     """
     check_export(plain(cfg.train))
+    check_trainable(plain(cfg.task))
     # built before the simulator starts: a class that cannot be built is one line, nothing written
     expert = build(cfg.train.bc.expert, "train.bc.expert") if cfg.train.get("bc") else None
     logger = build(cfg.logger, "logger")
@@ -94,6 +96,22 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
     logger.log_summary({k: v for k, v in result.items() if not isinstance(v, dict)})
     logger.finish()
     return result
+
+
+def check_trainable(task: dict) -> None:
+    """Refuse a task whose episodes do not step a closed-loop policy (the grasp task runs one planned grasp):
+    PPO has no actions to learn there.
+
+    Raises:
+        TaskInputError: names the task, what it runs and the tasks PPO trains on.
+    """
+    cls = session_class(task)
+    if "closed_loop" in cls.policy_kinds:
+        return
+    runs = " or ".join(POLICY_KINDS[k] for k in cls.policy_kinds) or "no closed-loop policy"
+    raise TaskInputError(f"task={task.get('name')} ({cls.__name__}) runs {runs}: python -m grt.train trains a "
+                         "closed-loop PPO policy, for a task whose episodes it steps (task=insertion, task=drawer, "
+                         "a ManiSkill task such as task=push_cube)")
 
 
 def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:

@@ -90,3 +90,11 @@ def test_a_train_config_whose_expert_is_another_tasks_is_one_line_before_any_sim
     assert "train.bc.expert" in line and "ServoInsertionPolicy" in line and "takes 4 actions" in line, line
     assert "train.bc=null" in line, line
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # no outputs/
+
+
+def test_a_task_whose_episodes_run_a_grasp_planner_is_not_trained_one_line(tmp_path):
+    """``task=grasp`` (one planned grasp an episode, no per-step actions): before, the worker processes died
+    on a missing ``reset`` and the command ended in a traceback."""
+    line = one_error_line(grt_train("task=grasp", "train.bc=null", cwd=tmp_path))
+    assert "task=grasp (GraspSession) runs a grasp planner" in line and "trains a closed-loop PPO policy" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
