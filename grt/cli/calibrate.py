@@ -32,6 +32,14 @@ def calibrate_task(cfg: DictConfig, out_dir: Path) -> dict:
     from grt.tasks.maniskill.session import ManiSkillSession
 
     task = plain(cfg.task)
+    for key, low, what in (("trials", 1, "episodes, each run with the stock actor and with the nominal swap"),
+                           ("max_hull_vertices", 4, "vertices of a convex part at most")):
+        value = cfg.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise TaskInputError(f"{key}={value}: give an integer >= {low} ({what})")
+    if isinstance(cfg.get("seed"), bool) or not isinstance(cfg.get("seed"), int):
+        raise TaskInputError(f"seed={cfg.get('seed')}: give an integer (the episode seeds are "
+                             "grt.redteam.episode_seeds(seed, trials), as a run's)")
     if not issubclass(session_class(task), ManiSkillSession):
         raise TaskInputError(f"task={cfg.task.name} is not a ManiSkill task (its session is "
                              f"{task['session']['_target_']}): calibration compares a swapped actor with the stock one")

@@ -43,6 +43,18 @@ def test_bad_maniskill_input_is_one_line_and_leaves_no_run_folder(tmp_path, args
     assert not out.exists()
 
 
+
+@pytest.mark.parametrize(("arg", "words"), [
+    ("trials=0", "trials=0: give an integer >= 1"),
+    ("seed=1.5", "seed=1.5: give an integer"),
+])
+def test_bad_calibration_settings_are_one_line_before_any_simulation(tmp_path, arg, words):
+    out = tmp_path / "calibration"  # trials=0 once ended in a ValueError traceback from episode_seeds
+    line = _refusal(_app("calibrate", "task=push_cube", "policy=push_cube_expert", arg, f"hydra.run.dir={out}"))
+    assert words in line, line
+    assert not out.exists()
+
+
 DOC_YAML = """\
 name: roll_ball
 env_id: RollBall-v1
