@@ -104,3 +104,30 @@ def test_the_listing_says_which_task_each_object_is_for(capsys):
     assert rows["drawer_handle"] == rows["drawer_pull"] == "drawer"
     assert rows["plug"] == rows["mug"] == "grasp"
     assert object_info("plug")["task"] == "grasp"
+
+
+def test_export_writes_every_object_and_never_replaces_a_file_unasked(tmp_path, capsys):
+    """``--export DIR``: every object as DIR/<name>.obj; a folder that cannot be made, or one holding a file of
+    an object's name (the user's own mug.obj), is one line and exit 2, nothing written (before, a traceback,
+    and the file replaced); ``--overwrite`` replaces them."""
+
+    from grt.cli.objects import main
+
+    main(["--export", str(tmp_path / "all")])
+    assert sorted(p.stem for p in (tmp_path / "all").iterdir()) == sorted(list_objects())
+    exported = trimesh.load(tmp_path / "all" / "mug.obj", force="mesh")
+    assert exported.is_watertight and abs(exported.volume - get_object("mug").volume) < 1e-9
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "mug.obj").write_text("the user's own mug\n")
+    capsys.readouterr()
+    for folder in (str(mine), str(tmp_path / "file.txt" / "sub")):
+        (tmp_path / "file.txt").write_text("a file, not a folder\n")
+        with pytest.raises(SystemExit) as info:
+            main(["--export", folder])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert info.value.code == 2 and len(err) == 1 and err[0].startswith("error: --export "), err
+    assert (mine / "mug.obj").read_text() == "the user's own mug\n"
+    assert sorted(p.name for p in mine.iterdir()) == ["mug.obj"]
+    main(["--export", str(mine), "--overwrite"])
+    assert len(list(mine.iterdir())) == len(list_objects())
