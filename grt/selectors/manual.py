@@ -8,6 +8,7 @@ encodes domain knowledge directly. Regions are boxes, spheres or named built-in 
 from __future__ import annotations
 
 import json
+import numbers
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -62,6 +63,8 @@ class ManualSelector(HandleSelector):
                 raise SelectorError(f"selector.file={file}: unknown keys {sorted(unknown)}; expected {FILE_KEYS}")
             for key in FILE_KEYS:
                 spec[key] += list(data.get(key, []))
+        for key in ("handles", "anchors"):
+            _check_indices(key, spec[key], file)
         self.spec = spec
         self.file = file
         self.far_anchors = max(int(far_anchors), MIN_ANCHORS)
@@ -98,6 +101,20 @@ class ManualSelector(HandleSelector):
         except ValueError as exc:  # indices the user gave: out of range, or a vertex both handle and anchor
             raise SelectorError(f"selector=manual: {exc}; fix selector.handles / selector.anchors "
                                 "(or their regions)") from None
+
+
+def _check_indices(key: str, values: list, file: str | None) -> None:
+    """Refuse a ``handles`` / ``anchors`` entry that is not a vertex index (an integer >= 0): ``1.5`` would
+    have been truncated to vertex 1 and ``[1, 2]`` failed deep in numpy.
+
+    Raises:
+        SelectorError: names the entry, where it came from and what is expected.
+    """
+    for value in values:
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 0:
+            where = f"selector.{key}" + (f" (with selector.file={file})" if file else "")
+            raise SelectorError(f"{where}: {value!r} is not a vertex index; give integers >= 0, e.g. "
+                                f"selector.{key}=[12,40], or regions (selector.{key[:-1]}_regions)")
 
 
 def _read_file(file: str) -> dict:

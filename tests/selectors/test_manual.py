@@ -76,3 +76,17 @@ def test_named_region_of_a_builtin_object():
     assert inside.all()
     with pytest.raises(ValueError, match="no region"):
         ManualSelector(handle_regions=["mug:spout"]).select(mesh, "t")
+
+
+@pytest.mark.parametrize("bad", [[1.5], [[1, 2]], ["abc"], [-1], [True]])
+def test_an_entry_that_is_no_vertex_index_is_refused_where_it_is_given(bad, tmp_path):
+    """1.5 was truncated to vertex 1 without a word; [1, 2] and 'abc' failed deep in numpy (a traceback)."""
+    from grt.selectors.base import SelectorError
+
+    with pytest.raises(SelectorError, match=r"selector\.handles: .* is not a vertex index; give integers >= 0"):
+        ManualSelector(handles=bad)
+    path = tmp_path / "sel.json"
+    path.write_text(json.dumps({"anchors": bad}))
+    with pytest.raises(SelectorError, match=rf"selector\.anchors \(with selector\.file={path}\): .* is not a vertex"):
+        ManualSelector(handles=[0], file=str(path))
+    assert ManualSelector(handles=np.array([3, 4])).spec["handles"] == [3, 4]  # numpy's integers are indices
