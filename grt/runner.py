@@ -49,7 +49,7 @@ from grt.runfolder import (
 from grt.scores import ScoreSpec, check_nominal_floor, crash_margin, nominal_floor
 from grt.selectors.base import HandleSet
 from grt.targets import build
-from grt.tasks import preflight, task_object
+from grt.tasks import preflight, task_description, task_object
 
 log = logging.getLogger("grt.run")
 
@@ -288,7 +288,7 @@ def _select_handles(cfg: DictConfig, mesh, run_dir: Path, selector) -> HandleSet
     path = run_dir / "handles.json"
     if path.exists():
         return HandleSet.from_json(path.read_text())
-    handle_set = selector.select(mesh, cfg.task.description)
+    handle_set = selector.select(mesh, task_description(cfg.task))
     write_text_atomic(path, handle_set.to_json())  # a kill mid-write must not leave a half file to resume from
     return handle_set
 

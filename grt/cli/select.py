@@ -40,7 +40,7 @@ from grt.optimizers.topdm import TOPDMOptimizer
 from grt.selectors.base import HandleSet
 from grt.selectors.panel import render_panel
 from grt.targets import build
-from grt.tasks import task_object
+from grt.tasks import task_description, task_object
 
 
 def panel_png(mesh: trimesh.Trimesh, result: HandleSet) -> bytes:
@@ -194,7 +194,7 @@ def main(cfg: DictConfig) -> None:
         out_dir = Path(cfg.paths.output_dir)
         selector = build(cfg.selector, "selector")
         settings = MeshSettings.from_config(cfg.get("mesh"))
-        record = select(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), str(cfg.task.description), selector,
+        record = select(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), task_description(cfg.task), selector,
                         out_dir, cfg.get("object_scale", 1.0), settings,
                         probe=dict(probe) if probe.get("sigmas") else None, deformer=cfg.get("deformer"),
                         task_name=str(cfg.task.name))

@@ -218,6 +218,17 @@ def check_policy_io(policy, task_name: str, spec: dict, num_actions: int) -> Non
 ACTOR_OBJECT = "actor"
 
 
+def task_description(task) -> str:
+    """What the task is, in words (``task.description``; the VLM selector reads it). A user's task YAML may
+    leave it out: then a sentence made from the task's name and env (said so in the words themselves)."""
+    found = task.get("description") if hasattr(task, "get") else None
+    if found:
+        return str(found)
+    env = (task.get("env_id") if hasattr(task, "get") else None) or (task.get("session") or {}).get("env_id")
+    return f"the {task.get('name', 'unnamed')} task" + (f" (ManiSkill env {env})" if env else "") + \
+        " (no task.description given)"
+
+
 def task_object(task, spec, cache_dir: str | Path) -> str:
     """The object spec to load (:func:`grt.geometry.mesh.load_mesh`): ``spec`` itself, or for ``actor`` the
     task's stock actor geometry (its session's ``nominal_object``, GRT's frame), written once as an OBJ

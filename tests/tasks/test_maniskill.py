@@ -331,3 +331,16 @@ def test_object_actor_needs_a_maniskill_task(tmp_path):
     with pytest.raises(TaskInputError, match="task=insertion has no actor of its own"):
         task_object({"name": "insertion", "session": {"_target_": "grt.tasks.insertion.InsertionSession"}}, "actor",
                     tmp_path)
+
+
+def test_a_task_yaml_without_a_description_gets_one_from_its_name_and_env():
+    """``description`` is for the VLM selector: a user's task YAML that leaves it out once crashed every run at
+    handle selection (``Key 'description' is not in struct``)."""
+    from omegaconf import OmegaConf
+
+    from grt.tasks import task_description
+
+    mine = OmegaConf.create({"name": "roll_ball", "env_id": "RollBall-v1", "session": {"env_id": "RollBall-v1"}})
+    OmegaConf.set_struct(mine, True)  # as Hydra composes it
+    assert task_description(mine) == "the roll_ball task (ManiSkill env RollBall-v1) (no task.description given)"
+    assert task_description({"name": "x", "description": "A robot rolls a ball."}) == "A robot rolls a ball."

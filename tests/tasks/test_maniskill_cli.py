@@ -34,6 +34,10 @@ def _refusal(proc: subprocess.CompletedProcess) -> str:
 @pytest.mark.parametrize(("args", "words"), [
     (["task=push_cube", "policy=pick_cube_expert"], ["PickCubePolicy reads a state of shape (42,)",
                                                      "task=push_cube gives a state of shape (35,)"]),
+    # a failure flag (or score key) the env's info lacks: once a sim_error of every trial, with the typo saved
+    # in the run's config, so resume= could not fix it
+    (["task=pick_cube", "policy=pick_cube_expert", "task.session.failure_flags=[is_grasped,is_obj_place]"],
+     ["task.failure_flags: 'is_obj_place' is not a key of PickCube-v1's info", "did you mean is_obj_placed?"]),
 ])
 def test_bad_maniskill_input_is_one_line_and_leaves_no_run_folder(tmp_path, args, words):
     out = tmp_path / "run"

@@ -40,6 +40,7 @@ z = 0, centred in x/y) and converts to the actor frame by the stock actor's cons
 from __future__ import annotations
 
 import contextlib
+import difflib
 import functools
 import gc
 import importlib
@@ -195,10 +196,28 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
         self._object_changed, self._obs = False, None
         self._reset_env(0, False)
         self.obs_spec = {k: tuple(v.shape) for k, v in self.observe().items()}
+        self._check_info_keys()
         self._check_policy()
         gc.collect()
 
     # ------------------------------------------------------------------ set-up checks
+    def _check_info_keys(self) -> None:
+        """The score key and the failure flags are keys of the env's info (``get_info`` after the reset), or a
+        one-line refusal naming the keys it has: found here, in the command's process before anything is
+        written, not as a ``sim_error`` of every trial of a run whose saved config then holds the typo."""
+        try:
+            info = self.unwrapped.get_info()
+        except Exception:  # noqa: BLE001 - an env that cannot evaluate before its first step: judged per trial
+            return
+        for key, where in [*((f, "task.failure_flags") for f, _ in self.flags),
+                           *(() if self.score_key == "success" else ((self.score_key, "task.score"),))]:
+            if key not in info:
+                self.env.close()
+                close = difflib.get_close_matches(key, list(info), n=1)
+                hint = f"; did you mean {close[0]}?" if close else ""
+                raise TaskInputError(f"{where}: {key!r} is not a key of {self.env_id}'s info; it has "
+                                     f"{', '.join(sorted(info))}{hint}")
+
     def _check_actor(self) -> None:
         """Exactly one actor of the env matches ``actor`` (per sub-scene), or a one-line refusal."""
         builds = self.swap.builds
