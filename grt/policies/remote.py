@@ -190,6 +190,11 @@ class RemoteBatchedPolicy(_Remote, BatchedPolicy):
         self._check_task(task)
         for group, want in sorted(self.obs_spec.items()):
             have = tuple(obs_spec[group]) if group in obs_spec else None
+            if have is None:
+                groups = ", ".join(f"{g} {tuple(v)}" for g, v in list(obs_spec.items())[:6]) or "none"
+                groups += f" and {len(obs_spec) - 6} more" if len(obs_spec) > 6 else ""
+                raise PolicyServerError(f"policy server {self.url} ({self.name}) reads observation {group!r} of "
+                                        f"shape {want}, which the task does not give (it gives {groups})")
             if have != want:
                 raise PolicyServerError(f"policy server {self.url} ({self.name}) expects observation {group!r} of "
                                         f"shape {want}, the task gives {have}")

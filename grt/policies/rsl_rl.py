@@ -114,6 +114,13 @@ class RslRlPolicy(BatchedPolicy):
         for group in sorted(needed):
             want = self.obs_spec.get(group)
             have = tuple(obs_spec[group]) if group in obs_spec else None
+            if have is None:
+                groups = ", ".join(f"{g} {tuple(v)}" for g, v in list(obs_spec.items())[:6]) or "none"
+                groups += f" and {len(obs_spec) - 6} more" if len(obs_spec) > 6 else ""
+                raise CheckpointError(f"checkpoint {self.path} reads observation {group!r} of shape {want}, which the "
+                                      f"task does not give (it gives {groups}): run the task with the observation "
+                                      "mode the policy was trained on (e.g. task.session.obs_mode) or use another "
+                                      "checkpoint")
             if have != want:
                 raise CheckpointError(f"checkpoint {self.path} expects observation {group!r} of shape {want}, the "
                                       f"task gives {have}: set the task's observation size to match (e.g. "

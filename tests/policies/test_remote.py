@@ -97,6 +97,8 @@ def test_a_batched_policy_served_acts_as_in_process():
     ("insertion", {"state": (4,)}, 2, "serves greedy 1 (batched policy for 'point_mass'), but the run's task is "
                                       "'insertion'"),
     ("point_mass", {"state": (24,)}, 2, "expects observation 'state' of shape (4,), the task gives (24,)"),
+    ("point_mass", {"cloud": (500, 3)}, 2, "reads observation 'state' of shape (4,), which the task does not give "
+                                          "(it gives cloud (500, 3))"),
     ("point_mass", {"state": (4,)}, 6, "outputs 2 actions, the task takes 6")])
 def test_a_handshake_mismatch_names_both_sides(task, spec, actions, message):
     with serve() as server, pytest.raises(PolicyServerError, match=re.escape(message)):

@@ -70,6 +70,9 @@ def test_ppo_learns_the_fake_task_and_the_checkpoint_loads(reach_task, box_shape
         policy.check("insertion", {"state": (24,)}, 6)
     with pytest.raises(CheckpointError, match="expects observation 'state' of shape \\(2,\\)"):
         policy.check("reach", {"state": (3,)}, 1)
+    with pytest.raises(CheckpointError, match=r"reads observation 'state' of shape \(2,\), which the task does not "
+                                              r"give \(it gives rgb \(8, 8, 3\)\)"):  # it once said "gives None"
+        policy.check("reach", {"rgb": (8, 8, 3)}, 1)
     with pytest.raises(CheckpointError, match="trained for task 'reach', not 'drawer'"):
         RslRlPolicy(str(small), task="drawer")
 

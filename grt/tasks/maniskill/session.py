@@ -159,6 +159,10 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
         import mani_skill.envs  # noqa: F401 - registers the stock envs
 
         check_env_id(str(env_id))
+        for key, value in (("max_steps", max_steps), ("driver_step_limit", driver_step_limit)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise TaskInputError(f"task.session.{key}={value}: give an integer >= 1 (control steps), or null for "
+                                     + ("the env's own max_episode_steps" if key == "max_steps" else "20 x max_steps"))
         super().__init__(policy, 1, rebuild_each_trial)
         self.task_name, self.env_id, self.actor = str(task_name), str(env_id), str(actor)
         try:

@@ -41,7 +41,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from grt.tasks.maniskill.geometry import ShapeRecord, nearest_records, read_records, records_mesh
+from grt.tasks.maniskill.geometry import (
+    ActorGeometryError,
+    ShapeRecord,
+    nearest_records,
+    read_records,
+    records_mesh,
+)
 
 _ACTIVE: list[ActorSwap] = []  # the swap whose env is loading its scene now (a stack: one env per process)
 _ORIGINAL_BUILD = None
@@ -156,7 +162,11 @@ class ActorSwap:
         if not self.matches(str(name)):
             return _ORIGINAL_BUILD(builder, name)
         records = read_records(builder)
-        stock = records_mesh(records)
+        try:
+            stock = records_mesh(records)
+        except ActorGeometryError as err:  # a regex (".*") that caught the ground or a marker: name the catch
+            raise ActorGeometryError(f"task.actor={self.pattern.pattern} matched the actor {name!r}: {err}; if it is "
+                                     "not the actor to deform, name that one exactly") from None
         if self.reference is None:
             self.reference = stock
             self.reference_solids = [r.mesh for r in records if r.mesh is not None]
