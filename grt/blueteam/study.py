@@ -123,6 +123,19 @@ def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
 def _check(bt: DictConfig, red_team: RedTeam | None) -> None:
     """Refuse settings that cannot work, before any simulation."""
     check_guard(str(bt.nominal_guard))
+    ints = {"iterations": 1, "top_k": 1, "num_envs": 1, "num_steps_per_env": 1, "max_steps": 1, "eval_trials": 1,
+            "val_trials": 1, "val_interval": 1, "val_patience": 1}
+    for key, low in ints.items():
+        value = bt.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise BlueTeamError(f"blueteam.{key}={value}: give an integer >= {low}")
+    share, below = bt.get("nominal_share"), bt.get("failing_below")
+    if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 <= float(share) < 1.0:
+        raise BlueTeamError(f"blueteam.nominal_share={share}: give a number in [0, 1) (the fraction of training "
+                            "episodes on the nominal object; the rest are on the CrashShapes)")
+    if isinstance(below, bool) or not isinstance(below, (int, float)) or not 0.0 < float(below) <= 1.0:
+        raise BlueTeamError(f"blueteam.failing_below={below}: give a number in (0, 1] (a CrashShape scores below "
+                            "this fraction of S0)")
     if int(bt.confirm.candidates) < 0 or (int(bt.confirm.candidates) > 0 and int(bt.confirm.trials) < 1):
         raise BlueTeamError(f"blueteam.confirm: candidates={bt.confirm.candidates}, trials={bt.confirm.trials} "
                             "cannot confirm: give candidates >= 1 and trials >= 1, or candidates=0 to export "

@@ -94,6 +94,20 @@ def test_an_untrainable_policy_is_refused_in_one_line(tmp_path):
     assert res.returncode == 2 and "not a red-team run folder" in res.stderr
 
 
+@pytest.mark.parametrize(("arg", "words"), [
+    ("blueteam.nominal_share=1.5", "blueteam.nominal_share=1.5: give a number in [0, 1)"),  # was a traceback
+    ("blueteam.iterations=0", "blueteam.iterations=0: give an integer >= 1"),  # was a whole study, untrained
+    ("blueteam.top_k=0", "blueteam.top_k=0: give an integer >= 1"),  # was "no CrashShape"
+])
+def test_settings_out_of_range_are_one_line_before_any_simulation(arg, words, tmp_path):
+    """Checked before the run is even read (a folder that is no run would be refused after them)."""
+    out = tmp_path / "bt"
+    res = _cli("grt.blueteam", f"run={tmp_path / 'any'}", arg, f"hydra.run.dir={out}")
+    errors = [line for line in res.stderr.splitlines() if line.strip()]
+    assert res.returncode == 2 and len(errors) == 1 and words in errors[0], res.stderr[-2000:]
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("how", ["resume", "hydra.run.dir"])
 def test_a_study_another_process_holds_is_refused_and_left_as_it_was(how, tmp_path):
     """A killed study is continued in its folder (``resume=DIR``, or ``hydra.run.dir=DIR``); a second one
