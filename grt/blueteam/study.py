@@ -38,7 +38,7 @@ from grt.blueteam.core import (
     write_table,
 )
 from grt.blueteam.finetune import fine_tune
-from grt.config import plain
+from grt.config import at_least, plain
 from grt.policies.rsl_rl import load_checkpoint
 from grt.redteam import episode_seeds
 from grt.runfolder import STUDY_RECORD, SavedRun, own_study_config
@@ -126,9 +126,8 @@ def _check(bt: DictConfig, red_team: RedTeam | None) -> None:
     ints = {"iterations": 1, "top_k": 1, "num_envs": 1, "num_steps_per_env": 1, "max_steps": 1, "eval_trials": 1,
             "val_trials": 1, "val_interval": 1, "val_patience": 1}
     for key, low in ints.items():
-        value = bt.get(key)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise BlueTeamError(f"blueteam.{key}={value}: give an integer >= {low}")
+        if not at_least(low).check(bt.get(key)):
+            raise BlueTeamError(f"blueteam.{key}={bt.get(key)}: give {at_least(low).accepts}")
     share, below = bt.get("nominal_share"), bt.get("failing_below")
     if isinstance(share, bool) or not isinstance(share, (int, float)) or not 0.0 <= float(share) < 1.0:
         raise BlueTeamError(f"blueteam.nominal_share={share}: give a number in [0, 1) (the fraction of training "

@@ -17,7 +17,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
-from grt.config import plain
+from grt.config import at_least, plain
 from grt.console import progress
 from grt.evaluators.collision import make_collision
 from grt.evaluators.worker_env import run_in_worker, worker_path
@@ -34,11 +34,10 @@ def calibrate_task(cfg: DictConfig, out_dir: Path) -> dict:
     task = plain(cfg.task)
     for key, low, what in (("trials", 1, "episodes, each run with the stock actor and with the nominal swap"),
                            ("max_hull_vertices", 4, "vertices of a convex part at most")):
-        value = cfg.get(key)
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            raise TaskInputError(f"{key}={value}: give an integer >= {low} ({what})")
-    if isinstance(cfg.get("seed"), bool) or not isinstance(cfg.get("seed"), int):
-        raise TaskInputError(f"seed={cfg.get('seed')}: give an integer (the episode seeds are "
+        if not at_least(low).check(cfg.get(key)):
+            raise TaskInputError(f"{key}={cfg.get(key)}: give {at_least(low).accepts} ({what})")
+    if not at_least(0).check(cfg.get("seed")):  # as budget.seed: episode_seeds takes no negative seed
+        raise TaskInputError(f"seed={cfg.get('seed')}: give {at_least(0).accepts} (the episode seeds are "
                              "grt.redteam.episode_seeds(seed, trials), as a run's)")
     if not issubclass(session_class(task), ManiSkillSession):
         raise TaskInputError(f"task={cfg.task.name} is not a ManiSkill task (its session is "

@@ -283,3 +283,10 @@ def policy_kind(cls: type) -> str | None:
     if callable(getattr(cls, "act", None)):
         return "closed_loop"
     return None
+
+
+def observation_groups(spec: dict, limit: int = 6) -> str:
+    """A task's observation groups as words for a message (``state (35,), cloud (500, 3)``), the first
+    ``limit`` of them."""
+    text = ", ".join(f"{g} {tuple(v)}" for g, v in list(spec.items())[:limit]) or "none"
+    return text + (f" and {len(spec) - limit} more" if len(spec) > limit else "")

@@ -37,6 +37,7 @@ from grt.policies.base import (
     PolicyInterrupted,
     PolicyServerError,
     PolicyUnavailable,
+    observation_groups,
 )
 from grt.policy_server import MAX_MESSAGE, PolicyClient, ProtocolError
 
@@ -191,8 +192,7 @@ class RemoteBatchedPolicy(_Remote, BatchedPolicy):
         for group, want in sorted(self.obs_spec.items()):
             have = tuple(obs_spec[group]) if group in obs_spec else None
             if have is None:
-                groups = ", ".join(f"{g} {tuple(v)}" for g, v in list(obs_spec.items())[:6]) or "none"
-                groups += f" and {len(obs_spec) - 6} more" if len(obs_spec) > 6 else ""
+                groups = observation_groups(obs_spec)
                 raise PolicyServerError(f"policy server {self.url} ({self.name}) reads observation {group!r} of "
                                         f"shape {want}, which the task does not give (it gives {groups})")
             if have != want:

@@ -21,7 +21,7 @@ from rsl_rl.utils import resolve_class
 from tensordict import TensorDict
 
 from grt.errors import UserError
-from grt.policies.base import BatchedPolicy
+from grt.policies.base import BatchedPolicy, observation_groups
 
 
 class CheckpointError(UserError):
@@ -115,8 +115,7 @@ class RslRlPolicy(BatchedPolicy):
             want = self.obs_spec.get(group)
             have = tuple(obs_spec[group]) if group in obs_spec else None
             if have is None:
-                groups = ", ".join(f"{g} {tuple(v)}" for g, v in list(obs_spec.items())[:6]) or "none"
-                groups += f" and {len(obs_spec) - 6} more" if len(obs_spec) > 6 else ""
+                groups = observation_groups(obs_spec)
                 raise CheckpointError(f"checkpoint {self.path} reads observation {group!r} of shape {want}, which the "
                                       f"task does not give (it gives {groups}): run the task with the observation "
                                       "mode the policy was trained on (e.g. task.session.obs_mode) or use another "

@@ -221,10 +221,9 @@ ACTOR_OBJECT = "actor"
 def task_description(task) -> str:
     """What the task is, in words (``task.description``; the VLM selector reads it). A user's task YAML may
     leave it out: then a sentence made from the task's name and env (said so in the words themselves)."""
-    found = task.get("description") if hasattr(task, "get") else None
-    if found:
-        return str(found)
-    env = (task.get("env_id") if hasattr(task, "get") else None) or (task.get("session") or {}).get("env_id")
+    if task.get("description"):
+        return str(task.get("description"))
+    env = task.get("env_id") or (task.get("session") or {}).get("env_id")
     return f"the {task.get('name', 'unnamed')} task" + (f" (ManiSkill env {env})" if env else "") + \
         " (no task.description given)"
 

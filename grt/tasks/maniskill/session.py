@@ -54,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from grt.config import at_least
 from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TrialOutcome
 from grt.tasks.batched import BatchedEpisodes, Objects
 from grt.tasks.maniskill.driver import StepLimit, StepRecorder
@@ -160,8 +161,8 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
 
         check_env_id(str(env_id))
         for key, value in (("max_steps", max_steps), ("driver_step_limit", driver_step_limit)):
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-                raise TaskInputError(f"task.session.{key}={value}: give an integer >= 1 (control steps), or null for "
+            if value is not None and not at_least(1).check(value):
+                raise TaskInputError(f"task.session.{key}={value}: give {at_least(1).accepts} (control steps), or null for "
                                      + ("the env's own max_episode_steps" if key == "max_steps" else "20 x max_steps"))
         super().__init__(policy, 1, rebuild_each_trial)
         self.task_name, self.env_id, self.actor = str(task_name), str(env_id), str(actor)
