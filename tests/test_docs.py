@@ -1,5 +1,6 @@
 """The docs hold together: every relative link of the README, docs/ and experiments/ resolves to a file or
-folder of the repository (and, with ``#anchor``, to a heading of that page)."""
+folder of the repository (and, with ``#anchor``, to a heading of that page), and every test a page names
+(``tests/x/test_y.py::test_z``, ``test_y.py::test_z``, ``::test_z`` after one of them) exists."""
 
 from __future__ import annotations
 
@@ -39,3 +40,29 @@ def test_every_relative_link_resolves(page):
         if not inside or (anchor and resolved.suffix == ".md" and anchor not in _anchors(resolved)):
             broken.append(target)
     assert not broken, f"{page.relative_to(ROOT)}: links to nothing: {broken}"
+
+
+TESTS = ROOT / "tests"
+TEST_REF = re.compile(r"(?<![\w/])((?:tests/[\w/]+/)?test_\w+\.py)((?:::\w+)?)|`::(test_\w+)`")
+
+
+def _defines(files: list[Path], name: str) -> bool:
+    return any(re.search(rf"^\s*(async )?def {name}\b", f.read_text(), re.M) for f in files)
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_test_a_page_names_exists(page):
+    missing, files = [], []
+    for ref in TEST_REF.finditer(page.read_text()):
+        path, name, alone = ref.groups()
+        if alone:  # "::test_z" continues the file named before it on the page
+            name, path = "::" + alone, None
+        else:
+            files = [ROOT / path] if path.startswith("tests/") else sorted(TESTS.rglob(path))
+            files = [f for f in files if f.exists()]
+            if not files:
+                missing.append(ref.group(0))
+                continue
+        if name and not _defines(files, name[2:]):
+            missing.append(ref.group(0))
+    assert not missing, f"{page.relative_to(ROOT)} names tests that do not exist: {missing}"
