@@ -2,7 +2,7 @@
 
 **The actor frame** is the frame the env builds and poses the actor in (ManiSkill's cube: centred on its
 origin; the charger: its origin where the pins meet the base). **GRT's frame** is the one every GRT mesh
-lives in: meters, z up, resting on z = 0, centred in x/y (``docs/architecture.md``, Objects). The two
+lives in: meters, z up, resting on z = 0, centred in x/y (``docs/interfaces.md``, Objects). The two
 differ by one translation per task, taken from the *stock* actor's collision geometry::
 
     offset = (centre x, centre y, lowest z) of the stock actor's bounding box, in the actor frame
