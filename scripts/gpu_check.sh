@@ -1,20 +1,22 @@
 #!/usr/bin/env bash
-# The GPU check of evaluator=gpu (issue 38) as ONE prepared run, 8.5 minutes at most, every figure to $OUT:
+# The GPU check of evaluator=gpu as ONE prepared run, 8.5 minutes at most, every figure to $OUT:
 #   1. the tests marked gpu (tests/evaluators/test_gpu.py);
 #   2. insertion_state's nominal success in GPU sub-scenes (128 trials) against the CPU worker pool's (64);
 #   3. trials/s at 512 and 2048 sub-scenes, the CPU pool's beside it (same machine, same run);
 #   4. the paper's insertion protocol (10 x 10 x 128, budget=paper) as one red-team run's wall time;
 #   then gpu_check.png from the JSONs. A step that fails or runs out of time is recorded and the next runs.
 #
-# On a lent GPU machine (the device tool, with .devicekit carried: ../shared/device/make_kit.sh builds it):
-#   source .devicekit/bootstrap.sh || exit 1; bash scripts/gpu_check.sh
-# Here, without a GPU: the same steps on ManiSkill's CPU simulation at tiny sizes (what can be checked of it):
+# On any machine with a CUDA GPU, in a fresh clone (docs/gpu.md):
+#   GRT_TORCH=torch make setup          # .venv with a CUDA build of torch
+#   bash scripts/gpu_check.sh           # figures to $OUT (default outputs/gpu_check); commit them under experiments/gpu/
+# Without a GPU: the same steps on ManiSkill's CPU simulation at tiny sizes (what can be checked of it):
 #   GPU_CHECK_BACKEND=physx_cpu OUT=/tmp/gpu_check bash scripts/gpu_check.sh
+# PYTHON=... picks the interpreter (default: the clone's .venv/bin/python, else python3).
 set -u
 cd "$(dirname "$0")/.."
 OUT=${OUT:-outputs/gpu_check}
 BACKEND=${GPU_CHECK_BACKEND:-physx_cuda}
-PY=${PYTHON:-python3}
+if [ -x .venv/bin/python ]; then PY=${PYTHON:-.venv/bin/python}; else PY=${PYTHON:-python3}; fi
 WORKERS=${GPU_CHECK_WORKERS:-$(( $(nproc) > 3 ? $(nproc) - 2 : 1 ))}
 mkdir -p "$OUT"
 export PYTHONUNBUFFERED=1
