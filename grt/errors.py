@@ -31,8 +31,10 @@ class OutputError(UserError):
     """An output the tool cannot write (unsupported format, missing or read-only folder)."""
 
 
-def check_output_file(path: str | Path, suffixes: Iterable[str] | None = None, flag: str = "--out") -> Path:
-    """Refuse an output file before any work: an unsupported extension, or a folder that does not exist.
+def check_output_file(path: str | Path, suffixes: Iterable[str] | None = None, flag: str = "--out",
+                      overwrite: bool | None = None) -> Path:
+    """Refuse an output file before any work: an unsupported extension, or a folder that does not exist; with
+    ``overwrite=False``, a file that exists too (the user's file is replaced only when they ask: ``--overwrite``).
 
     Raises:
         OutputError: names the path, the problem and the fix.
@@ -51,4 +53,7 @@ def check_output_file(path: str | Path, suffixes: Iterable[str] | None = None, f
                           f"or give another {flag}")
     if not folder.is_dir():
         raise OutputError(f"{flag} {path}: {folder} is a file, not a folder; give another {flag}")
+    if overwrite is False and path.exists():
+        given = f"{flag}{path}" if flag.endswith("=") else f"{flag} {path}"
+        raise OutputError(f"{given} already exists; give another {flag.rstrip('=')}, or --overwrite to replace it")
     return path

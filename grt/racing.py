@@ -33,6 +33,8 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numpy as np
+
 from grt.scores import is_crash
 
 #: why a candidate stopped (the journal's ``race.stopped``)
@@ -60,45 +62,114 @@ def failures_needed(trials: int, s0: float, margin: float, kth: float | None) ->
     return None
 
 
-def _pmf(total: int, bad: int, n: int) -> list[float]:
-    """Hypergeometric ``P(f failures among the first n of total | bad failures in all)``, ``f = 0..n``."""
-    whole = math.comb(total, n)
-    return [math.comb(bad, f) * math.comb(total - bad, n - f) / whole for f in range(n + 1)]
+def _tail(total: int, bad: int, n: int, alpha: float) -> np.ndarray:
+    """Hypergeometric ``P(f or fewer failures among the first n of total | bad failures in all)`` for
+    ``f = 0, 1, ...`` up to and including the first value above ``alpha`` (or ``f = n``): the lower tail, the only
+    part a stop at level ``<= alpha`` reads. Each term is exact big-integer arithmetic rounded once to a float
+    (``C(bad, f) C(total - bad, n - f) / C(total, n)``), the tail their running sum."""
+    low, high = max(0, n - (total - bad)), min(n, bad)  # the support
+    whole, terms = math.comb(total, n), [0.0] * low
+    term = math.comb(bad, low) * math.comb(total - bad, n - low)
+    cdf = 0.0
+    for f in range(low, high + 1):
+        cdf += term / whole  # int / int: rounded once
+        terms.append(cdf)
+        if cdf > alpha + 1e-15:
+            break
+        term = term * (bad - f) * (n - f) // ((f + 1) * (total - bad - n + f + 1)) if f < high else 0
+    return np.maximum.accumulate(np.asarray(terms or [0.0]))
 
 
-def _cdf(total: int, bad: int, n: int, f: int) -> float:
-    return sum(_pmf(total, bad, n)[: f + 1])
-
-
-def _stops(total: int, bad: int, at: tuple[int, ...], level: float) -> list[int]:
-    """Per look, the most failures at which a candidate stops (``-1``: none) at per-look ``level``."""
+def _stops(total: int, bad: int, at: tuple[int, ...], level: float, tails: list[np.ndarray] | None = None,
+           ) -> list[int]:
+    """Per look, the most failures at which a candidate stops (``-1``: none) at per-look ``level``: those whose
+    tail probability is at most ``level``, and those that even failing every remaining trial cannot reach
+    ``bad`` (both a prefix of ``f = 0, 1, ...``, so the larger end is the bound)."""
+    tails = tails or [_tail(total, bad, n, level) for n in at]
     out = []
-    for n in at:
-        most = -1
-        for f in range(n + 1):
-            certain = f + (total - n) < bad  # even failing every remaining trial it cannot matter
-            if certain or _cdf(total, bad, n, f) <= level + 1e-15:
-                most = f
-            else:
-                break
-        out.append(most)
+    for n, tail in zip(at, tails, strict=True):
+        certain = bad - (total - n) - 1  # f + (total - n) < bad
+        by_level = int(np.searchsorted(tail, level + 1e-15, side="right")) - 1
+        out.append(min(n, max(certain, by_level)))
     return out
 
 
-def _risk(total: int, bad: int, at: tuple[int, ...], bounds: list[int]) -> float:
-    """Exact probability that a candidate with ``bad`` failures among ``total`` is stopped at some look."""
-    # state: failures seen so far -> probability of having got there without stopping
-    alive, seen, stopped = {0: 1.0}, 0, 0.0
-    for n, most in zip(at, bounds, strict=True):
-        step = n - seen
-        nxt: dict[int, float] = {}
-        for f, p in alive.items():
-            left, bad_left = total - seen, bad - f
-            for g, q in enumerate(_pmf(left, bad_left, step)):
-                if q:
-                    nxt[f + g] = nxt.get(f + g, 0.0) + p * q
-        stopped += sum(p for f, p in nxt.items() if f <= most)
-        alive, seen = {f: p for f, p in nxt.items() if f > most}, n
+def _kernel(left: int, bad_left: np.ndarray, step: int) -> np.ndarray:
+    """``P(g failures among the next step of left trials | bad_left failures in them)``, ``g = 0..step``, one
+    row per ``bad_left``. Each row is the pmf's ratio recurrence summed in log space from its mode, normalised
+    over its whole support (relative error ~1e-13, far below the rule's 1e-12 tolerance; no big integers)."""
+    k = bad_left[:, None].astype(np.float64)
+    low = np.maximum(0, step - (left - bad_left))[:, None]
+    high = np.minimum(step, bad_left)[:, None]
+    mode = np.clip((step + 1) * (bad_left + 1) // (left + 2), low[:, 0], high[:, 0])
+    g = np.arange(step, dtype=np.float64)[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):  # outside the support: masked below
+        ratio = np.log((k - g) * (step - g)) - np.log((g + 1) * (left - k - step + g + 1))
+    log_p = np.concatenate([np.zeros((len(k), 1)), np.cumsum(np.where((g >= low) & (g < high), ratio, 0.0),
+                                                             axis=1)], axis=1)
+    g_all = np.arange(step + 1)[None, :]
+    support = (g_all >= low) & (g_all <= high)
+    p = np.where(support, np.exp(np.where(support, log_p - log_p[np.arange(len(k)), mode][:, None], -np.inf)), 0.0)
+    return p / p.sum(axis=1, keepdims=True)
+
+
+class _Steps:
+    """The kernels of the steps between looks (:func:`_kernel`), made once per state and reused by every risk
+    :func:`look_level` computes for one ``(total, bad, at)``: per look, the rows of a range of states."""
+
+    def __init__(self, total: int, bad: int, at: tuple[int, ...]):
+        self.total, self.bad, self.at = total, bad, at
+        self.rows: list[tuple[int, np.ndarray]] = [(0, np.zeros((0, n - (at[j - 1] if j else 0) + 1)))
+                                                    for j, n in enumerate(at)]
+
+    def __call__(self, j: int, first: int, last: int) -> np.ndarray:
+        """The kernel rows of the step into look ``j`` from the states ``first..last`` (failures seen at the
+        look before)."""
+        lo, known = self.rows[j]
+        if not len(known):
+            lo = first
+        seen = self.at[j - 1] if j else 0
+        make = lambda a, b: _kernel(self.total - seen, self.bad - np.arange(a, b), self.at[j] - seen)  # noqa: E731
+        if first < lo:
+            known, lo = np.concatenate([make(first, lo), known]), first
+        if last >= lo + len(known):
+            known = np.concatenate([known, make(lo + len(known), last + 1)])
+        self.rows[j] = (lo, known)
+        return known[first - lo: last - lo + 1]
+
+
+def _shifted_sum(rows: np.ndarray, first: int, size: int) -> np.ndarray:
+    """``out[first + i + g] += rows[i, g]`` (row ``i`` shifted right by ``first + i``), cut at ``size``: each
+    row laid out one place further than the one above in a flat buffer (no scatter)."""
+    count, width = rows.shape
+    skew = np.zeros((count, width + count))
+    skew[:, :width] = rows
+    summed = skew.ravel()[: count * (width + count - 1)].reshape(count, width + count - 1).sum(axis=0)
+    out = np.zeros(size)
+    end = min(size, first + len(summed))
+    out[first:end] = summed[: end - first]
+    return out
+
+
+def _risk(total: int, bad: int, at: tuple[int, ...], bounds: list[int], steps: _Steps | None = None) -> float:
+    """Exact probability that a candidate with ``bad`` failures among ``total`` is stopped at some look.
+
+    Failures only accumulate, so a state above every later look's bound is never stopped: only the states at
+    or below the largest bound still to come are carried from look to look (the probability of each is that
+    of reaching it without having been stopped).
+    """
+    steps = steps or _Steps(total, bad, at)
+    later = np.maximum.accumulate(np.asarray(bounds, dtype=np.int64)[::-1])[::-1]  # max bound from each look on
+    alive, first, stopped = np.ones(1), 0, 0.0
+    for j, (most, top) in enumerate(zip(bounds, later.tolist(), strict=True)):
+        live = np.flatnonzero(alive[: top - first + 1] > 0)  # a state of mass 0 carries nothing
+        if not len(live):
+            break
+        lo, hi = first + int(live[0]), first + int(live[-1])
+        mass = alive[lo - first: hi - first + 1]
+        new = _shifted_sum(mass[:, None] * steps(j, lo, hi)[:, : top - lo + 1], lo, top + 1)
+        stopped += float(new[: most + 1].sum())
+        first, alive = most + 1, new[most + 1:]
     return stopped
 
 
@@ -107,15 +178,18 @@ def look_level(total: int, bad: int, at: tuple[int, ...], alpha: float) -> tuple
     """Per look, the most failures seen at which a candidate stops, so that one with ``bad`` failures among
     ``total`` is stopped at any look with probability <= ``alpha``; the same per-look level at every look,
     the largest that keeps the exact risk (:func:`_risk`) within ``alpha`` (found among the attainable
-    p-values). ``alpha = 0``: the deterministic bound only."""
-    candidates = sorted({_cdf(total, bad, n, f) for n in at for f in range(n + 1)} | {0.0})
-    candidates = [c for c in candidates if c <= alpha + 1e-15]
-    best = _stops(total, bad, at, 0.0)
+    p-values). ``alpha = 0``: the deterministic bound only.
+
+    Its cost grows with the tails and the bounds, not with ``total`` squared: about a millisecond to tens of
+    milliseconds from 64 to 4096 trials (``python -m grt.bench racing rule``)."""
+    tails = [_tail(total, bad, n, alpha) for n in at]
+    candidates = sorted({float(c) for tail in tails for c in tail if c <= alpha + 1e-15} | {0.0})
+    best, steps = _stops(total, bad, at, 0.0, tails), _Steps(total, bad, at)
     lo, hi = 0, len(candidates) - 1
     while lo <= hi:  # the risk grows with the level: the largest level within alpha
         mid = (lo + hi) // 2
-        bounds = _stops(total, bad, at, candidates[mid])
-        if _risk(total, bad, at, bounds) <= alpha + 1e-12:
+        bounds = _stops(total, bad, at, candidates[mid], tails)
+        if _risk(total, bad, at, bounds, steps) <= alpha + 1e-12:
             best, lo = bounds, mid + 1
         else:
             hi = mid - 1

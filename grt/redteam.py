@@ -31,11 +31,28 @@ if TYPE_CHECKING:
     from grt.geometry.deform import ShapeDeformer
 
 
+SEED_RANGE = 2**31 - 1  # episode seeds are drawn from [0, SEED_RANGE)
+
+
 def episode_seeds(seed: int, trials: int) -> list[int]:
-    """The run's episode seeds: every candidate is scored on these same episodes (common random numbers)."""
+    """The run's episode seeds: every candidate is scored on these same episodes (common random numbers).
+
+    ``trials`` distinct seeds, drawn from ``default_rng(seed)`` in ``[0, 2**31 - 1)``; a draw that repeats an
+    earlier seed (from ~17k-80k seeds on, a birthday collision) is skipped and the next draw taken, so the
+    first ``n`` seeds are the same for every count ``trials >= n`` (and for the counts where no draw repeats,
+    the plain draws, as they always were).
+    """
     if trials < 1:
         raise ValueError(f"trials must be >= 1, got {trials}")
-    return [int(s) for s in np.random.default_rng(seed).integers(0, 2**31 - 1, size=trials)]
+    if trials > SEED_RANGE // 2:
+        raise ValueError(f"trials={trials}: at most {SEED_RANGE // 2} distinct episode seeds are drawn")
+    rng = np.random.default_rng(seed)
+    drawn = rng.integers(0, SEED_RANGE, size=trials)
+    while True:  # the generator's stream, first occurrences in order, until there are enough
+        _, first = np.unique(drawn, return_index=True)
+        if len(first) >= trials:
+            return [int(s) for s in drawn[np.sort(first)[:trials]]]
+        drawn = np.concatenate([drawn, rng.integers(0, SEED_RANGE, size=trials - len(first))])
 
 
 @dataclass

@@ -10,17 +10,24 @@ that beats the earlier top-k): a stopped one that mattered is a loss. The search
 ``run [OVERRIDES]``: the same red-team run twice in this process, racing off and on (``budget.racing=true``),
 each in its own folder under ``--out``; prints trials, wall time and their ratios, and whether the racing
 run found the same best score and Final Drop.
+
+``rule``: the cost of computing the rule (:func:`grt.racing.look_level`, the main process's work while the
+workers wait) against the reference computation (:func:`reference_look_level`: every hypergeometric
+probability in exact integers, every attainable level's risk summed over all states), both in this process,
+at growing trial counts; prints seconds, their ratio, and whether both give the same stop bounds (the
+reference only up to ``--reference-up-to`` trials: it takes minutes at 1024).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from pathlib import Path
 
 from grt.errors import UserError
-from grt.racing import Race, kth_best, looks
+from grt.racing import Race, failures_needed, kth_best, look_level, looks
 from grt.scores import is_crash
 
 
@@ -116,6 +123,84 @@ def _compare(args) -> None:
                       "on": {"trials": on["trials_used"], "wall_s": t_on, "final_drop": on["final_drop"]}}))
 
 
+def _pmf(total: int, bad: int, n: int) -> list[float]:
+    whole = math.comb(total, n)
+    return [math.comb(bad, f) * math.comb(total - bad, n - f) / whole for f in range(n + 1)]
+
+
+def _cdf(total: int, bad: int, n: int, f: int) -> float:
+    return sum(_pmf(total, bad, n)[: f + 1])
+
+
+def _reference_stops(total: int, bad: int, at: tuple[int, ...], level: float) -> list[int]:
+    out = []
+    for n in at:
+        most = -1
+        for f in range(n + 1):
+            if f + (total - n) < bad or _cdf(total, bad, n, f) <= level + 1e-15:
+                most = f
+            else:
+                break
+        out.append(most)
+    return out
+
+
+def reference_risk(total: int, bad: int, at: tuple[int, ...], bounds: list[int]) -> float:
+    """The exact risk of :func:`grt.racing._risk` computed over every state, each step's probabilities in exact
+    integers."""
+    alive, seen, stopped = {0: 1.0}, 0, 0.0
+    for n, most in zip(at, bounds, strict=True):
+        nxt: dict[int, float] = {}
+        for f, p in alive.items():
+            for g, q in enumerate(_pmf(total - seen, bad - f, n - seen)):
+                if q:
+                    nxt[f + g] = nxt.get(f + g, 0.0) + p * q
+        stopped += sum(p for f, p in nxt.items() if f <= most)
+        alive, seen = {f: p for f, p in nxt.items() if f > most}, n
+    return stopped
+
+
+def reference_look_level(total: int, bad: int, at: tuple[int, ...], alpha: float) -> tuple[int, ...]:
+    """:func:`grt.racing.look_level` by its definition, the straightforward way: the reference its results and
+    its speed are measured against (``rule``)."""
+    levels = [c for c in sorted({_cdf(total, bad, n, f) for n in at for f in range(n + 1)} | {0.0})
+              if c <= alpha + 1e-15]
+    best = _reference_stops(total, bad, at, 0.0)
+    lo, hi = 0, len(levels) - 1
+    while lo <= hi:
+        mid = (lo + hi) // 2
+        bounds = _reference_stops(total, bad, at, levels[mid])
+        if reference_risk(total, bad, at, bounds) <= alpha + 1e-12:
+            best, lo = bounds, mid + 1
+        else:
+            hi = mid - 1
+    return tuple(best)
+
+
+def _rule_main(args) -> None:
+    rows = []
+    for trials in args.trials:
+        at = looks(trials, args.rounds)
+        bad = failures_needed(trials, args.s0, args.margin, None)
+        if bad is None:
+            raise UserError(f"--s0 {args.s0} --margin {args.margin}: no failure count makes a CrashShape")
+        look_level.cache_clear()
+        start = time.perf_counter()
+        bounds = look_level(trials, bad, at, args.alpha)
+        fast = time.perf_counter() - start
+        row = {"trials": trials, "needed": bad, "bounds": list(bounds), "seconds": fast}
+        line = f"{trials:>5} trials ({bad} failures needed): {fast * 1e3:8.1f} ms"
+        if trials <= args.reference_up_to:
+            start = time.perf_counter()
+            reference = reference_look_level(trials, bad, at, args.alpha)
+            slow = time.perf_counter() - start
+            row.update(reference_s=slow, ratio=slow / fast, same=reference == bounds)
+            line += f"; reference {slow:8.2f} s: {slow / fast:8.0f}x faster, same bounds: {reference == bounds}"
+        print(line, flush=True)
+        rows.append(row)
+    print(json.dumps(rows))
+
+
 def main(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(prog="python -m grt.bench racing", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="mode", required=True)
@@ -127,5 +212,13 @@ def main(argv: list[str]) -> None:
     run = sub.add_parser("run", help="one run with racing off and on, same process")
     run.add_argument("overrides", nargs="*", help="grt.run overrides (default: the demo)")
     run.add_argument("--out", default="outputs/bench_racing")
+    rule = sub.add_parser("rule", help="the cost of the racing rule against its reference computation")
+    rule.add_argument("--trials", type=int, nargs="+", default=[64, 128, 256, 512, 1024, 4096])
+    rule.add_argument("--rounds", type=int, default=8)
+    rule.add_argument("--alpha", type=float, default=0.05)
+    rule.add_argument("--s0", type=float, default=0.9, help="nominal success rate")
+    rule.add_argument("--margin", type=float, default=0.1, help="task.crash_margin")
+    rule.add_argument("--reference-up-to", type=int, default=256,
+                      help="time the reference only up to this many trials (it takes minutes at 1024)")
     args = parser.parse_args(argv)
-    (_replay_main if args.mode == "replay" else _compare)(args)
+    {"replay": _replay_main, "run": _compare, "rule": _rule_main}[args.mode](args)

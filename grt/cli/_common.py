@@ -43,7 +43,7 @@ from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBase
 from grt import CONF_DIR
 from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resolvers too
 from grt.config import BudgetSchema, add_resolver, budget_hint, unknown_budget_key
-from grt.errors import INTERRUPTED, OutputError, Terminated, UserError
+from grt.errors import INTERRUPTED, TERMINATED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
 from grt.runfolder import (  # also registers the resume_or resolver of hydra.run.dir
     discard_new,
@@ -94,6 +94,7 @@ class AppParser(argparse.ArgumentParser):
         super().__init__(prog=f"python -m grt.{name}", description=kwargs.pop("description", ABOUT[name]),
                          **kwargs)
         self.about = about_line(name)
+        stop_on_sigterm()  # SIGTERM: one line and exit code 143, as for the Hydra apps
 
     def format_help(self) -> str:
         return f"{self.about}\n\n{super().format_help()}"
@@ -154,13 +155,16 @@ def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = 
 @contextlib.contextmanager
 def exit_on_user_error(*also: type[BaseException]):
     """Turn a user error (or one of the types ``also``) into ``error: <message>`` on stderr and exit code 2,
-    Ctrl-C into one line and exit code 130. Inside a Hydra app, a folder this command made and saved nothing
-    in is removed, and the line says so (:func:`grt.runfolder.discard_new`)."""
+    Ctrl-C into one line and exit code 130, SIGTERM (:class:`grt.errors.Terminated`) into one line and exit code
+    143. Inside a Hydra app, a folder this command made and saved nothing in is removed, and the line says so
+    (:func:`grt.runfolder.discard_new`)."""
     try:
         yield
-    except KeyboardInterrupt:
-        print("interrupted (Ctrl-C)", file=sys.stderr)
-        raise SystemExit(INTERRUPTED) from None
+    except KeyboardInterrupt as exc:
+        stop, code = (("terminated (SIGTERM)", TERMINATED) if isinstance(exc, Terminated)
+                      else ("interrupted (Ctrl-C)", INTERRUPTED))
+        print(stop, file=sys.stderr)
+        raise SystemExit(code) from None
     except Exception as exc:
         found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc) or _search_path_error(exc)
         if found is None:

@@ -5,8 +5,9 @@ its blue-team ``table3*.json`` tables), ``--records`` adds the commit that wrote
 ``--html`` writes ``report.html`` (one self-contained page: a run folder's, or a sweep's linking each run's
 page), ``--search-plot OUT.png`` draws the Final Drop against simulator trials per search method,
 ``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
-(``python -m grt.report experiments --update-readmes``). A mistake (no such folder, no or a broken
-``summary.json``, a ``--csv`` path that cannot be written) is one ``error:`` line and exit code 2; a run
+(``python -m grt.report experiments --update-readmes``). An existing ``--csv`` or ``--search-plot`` file is
+replaced only with ``--overwrite``. A mistake (no such folder, no or a broken ``summary.json``, a ``--csv``
+path that exists or cannot be written) is one ``error:`` line and exit code 2; a run
 stopped before its end is one line naming the command that finishes it (as ``--html`` says on its page).
 """
 
@@ -42,6 +43,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="write the degradation curve against simulator trials used, per search method")
     ap.add_argument("--update-readmes", action="store_true",
                     help="rewrite the <!-- grt.report ... --> blocks of every README.md under PATH")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --csv or --search-plot file")
     args = ap.parse_args(argv)
     with exit_on_user_error(ReportError):
         if args.html:
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.search_plot:
             from grt.report.search import plot
 
-            check_output_file(args.search_plot, (".png",), "--search-plot")
+            check_output_file(args.search_plot, (".png",), "--search-plot", overwrite=args.overwrite)
             try:
                 print(f"wrote {plot(collect(args.path)[0], args.search_plot)}")
             except ValueError as exc:
@@ -64,7 +66,7 @@ def main(argv: list[str] | None = None) -> None:
             print("\n".join(f"updated {p}" for p in changed) or f"every README.md under {args.path} is up to date")
             return
         if args.csv:
-            check_output_file(args.csv, (".csv",), "--csv")  # before reading anything
+            check_output_file(args.csv, (".csv",), "--csv", overwrite=args.overwrite)  # before reading anything
         if args.markdown or args.records:
             print(render(args.path, records=args.records))
             rows = collect(args.path)[0] if args.csv else []

@@ -67,13 +67,16 @@ def main(cfg: DictConfig) -> float:
             removed = discard_new(out_dir)  # refused before it saved anything: no folder left behind
             print(f"error: {found}" + (f" ({removed})" if removed else ""), file=sys.stderr)
             raise SystemExit(2) from None
+    best, last = result.get("best_success"), result.get("last_success")
+    if result.get("nothing_to_train"):
+        print(result["nothing_to_train"])
+        return float(best if best is not None else last if last is not None else float("nan"))
     print(f"trained {result['iterations']} iterations ({result['steps']} steps) in {result['wall_s']:.0f} s; "
           f"{training_success(result, cfg.train.get('patience'))}; files in {out_dir}")
     ev = result.get("evaluation")
     if ev:
         print(f"evaluation: {cfg.task.score} {ev['score']:.4g} (success {ev['success_rate']:.3f}) over "
               f"{ev['trials']} trials {ev['outcomes']}")
-    best, last = result.get("best_success"), result.get("last_success")
     return float(best if best is not None else last if last is not None else float("nan"))
 
 

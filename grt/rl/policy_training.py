@@ -20,7 +20,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, OmegaConf
@@ -35,7 +34,16 @@ from grt.geometry.prepare import MeshSettings
 from grt.policies.base import POLICY_KINDS
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.redteam import episode_seeds
-from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train, write_json
+from grt.rl.train import (
+    TrainSpec,
+    ValidationSpec,
+    export_policy,
+    finished,
+    plot_curve,
+    read_checkpoint,
+    train,
+    write_json,
+)
 from grt.rl.vec_env import Shape, TaskVecEnv
 from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
 from grt.targets import build
@@ -54,6 +62,11 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
     """
     check_export(plain(cfg.train))
     check_trainable(plain(cfg.task))
+    done = finished(out_dir, int(cfg.train.iterations)) if cfg.get("resume") else None
+    if done is not None:  # a finished training: said, and not a file of it changes
+        return {**done, "nothing_to_train": f"nothing to train: {out_dir} already trained {done['iterations']} "
+                f"iterations (train.iterations={cfg.train.iterations}); its files are as they were (a larger "
+                "train.iterations trains longer)"}
     # built before the simulator starts: a class that cannot be built is one line, nothing written
     expert = build(cfg.train.bc.expert, "train.bc.expert") if cfg.train.get("bc") else None
     logger = build(cfg.logger, "logger")
@@ -134,7 +147,7 @@ def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
         return own
     rewritten = f"{Path(cfg.resume) / TRAIN_RECORD} is the record of an earlier resume (made before grt.train " \
                 "kept the record of a training's start)"
-    trained = torch.load(last, map_location="cpu", weights_only=False).get("grt", {}) if last.exists() else {}
+    trained = read_checkpoint(last).get("grt", {}) if last.exists() else {}
     if not {"task_cfg", "train_cfg"} <= set(trained):
         log.warning("%s: continuing with that record", rewritten)
         return own

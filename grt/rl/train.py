@@ -26,6 +26,7 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from tqdm.auto import tqdm
 
+from grt.errors import UserError
 from grt.fileio import atomic_path
 from grt.rl.vec_env import TaskVecEnv
 
@@ -156,8 +157,8 @@ def _start(runner: OnPolicyRunner, env: TaskVecEnv, spec: TrainSpec, cfg: dict, 
     """Load the starting weights: ``last.pt`` (resume), else the initial checkpoint, else a behaviour-
     cloning warm start (written to ``cfg`` and ``warm_start.json``); returns ``(first iteration, best)``."""
     if (out / "last.pt").exists():
+        state = read_checkpoint(out / "last.pt")  # a damaged file: one line, before rsl-rl reads it
         runner.load(str(out / "last.pt"))
-        state = torch.load(out / "last.pt", map_location="cpu", weights_only=False)
         log.info("resuming %s at iteration %d", out, int(state["iter"]) + 1)
         return int(state["iter"]) + 1, float(state["grt"].get("best_success", -1.0))
     if spec.init_checkpoint:
@@ -397,9 +398,44 @@ def export_policy(checkpoint: str | Path, dest: str | Path, metrics: dict | None
     return dest
 
 
+class TrainingFolderError(UserError):
+    """A file of a training's folder that cannot be read (a damaged ``last.pt``)."""
+
+
+def read_checkpoint(path: Path) -> dict:
+    """A checkpoint of :func:`_save` (GRT's own file, so unpickled in full).
+
+    Raises:
+        TrainingFolderError: the file cannot be read (cut short, not a checkpoint): names it and the fix.
+    """
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        int(state["iter"])
+        return state
+    except Exception as exc:  # noqa: BLE001 - whatever torch or pickle says, the file is damaged
+        why = (str(exc).strip().splitlines() or [""])[0][:200]
+        raise TrainingFolderError(
+            f"{path} cannot be read ({type(exc).__name__}: {why}): the checkpoint is damaged (cut short by a full "
+            f"disk or an unfinished copy?); restore it, or remove it to train again from iteration 0") from None
+
+
 def _checkpoint_iter(path: Path) -> int | None:
     """The iteration a checkpoint of :func:`_save` was saved at (``None``: no such file)."""
-    return int(torch.load(path, map_location="cpu", weights_only=False)["iter"]) if path.exists() else None
+    return int(read_checkpoint(path)["iter"]) if path.exists() else None
+
+
+def finished(out: Path, iterations: int) -> dict | None:
+    """``train.json`` of the training in ``out`` when it has nothing left to train: it was written after its
+    ``last.pt`` (of iteration ``iterations - 1`` or later); ``None`` otherwise. A damaged ``last.pt`` raises
+    :class:`TrainingFolderError`."""
+    record, last = out / "train.json", out / "last.pt"
+    if not last.is_file():
+        return None
+    trained = _checkpoint_iter(last) + 1
+    if trained < iterations or not record.is_file():
+        return None
+    result = json.loads(record.read_text())
+    return result if result.get("iterations") == trained else None
 
 
 def _save(runner: OnPolicyRunner, path: Path, it: int, cfg: dict) -> None:

@@ -201,3 +201,20 @@ def test_a_new_command_in_a_training_folder_with_other_settings_is_refused_and_c
     res = grt_train(*same, f"hydra.run.dir={training}", cwd=training.parent)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert metrics(training) == [0, 1, 2]  # went on from last.pt
+
+
+@pytest.mark.slow
+def test_a_finished_training_resumed_changes_none_of_its_files_and_a_damaged_last_pt_is_one_line(training):
+    """``resume=`` of a finished training said "nothing to train" yet rewrote ``train.json`` and the metrics
+    inside ``policy.pt``; a ``last.pt`` cut short was an 89-line traceback."""
+    kept = ("train.json", "policy.pt", "last.pt", "metrics.csv", "curve.png")
+    before = {name: (training / name).read_bytes() for name in kept}
+    res = grt_train(f"resume={training}", cwd=training.parent)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    assert f"nothing to train: {training} already trained 2 iterations (train.iterations=2)" in res.stdout, res.stdout
+    assert {name: (training / name).read_bytes() for name in kept} == before
+    last = training / "last.pt"
+    last.write_bytes(before["last.pt"][: len(before["last.pt"]) // 2])
+    line = one_error_line(grt_train(f"resume={training}", "train.iterations=3", cwd=training.parent))
+    assert line.startswith(f"error: {last} cannot be read (") and "restore it, or remove it" in line, line
+    assert (training / "train.json").read_bytes() == before["train.json"]

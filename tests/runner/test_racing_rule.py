@@ -72,3 +72,33 @@ def test_kth_best_reads_full_trial_crashshapes_of_earlier_iterations_only():
     assert kth_best(recs, 2, 1.0, 0.1, before=3) == 0.5
     assert kth_best(recs, 2, 1.0, 0.1, before=2) is None
     assert kth_best(recs, 1, 1.0, 0.1, before=4) == 0.0
+
+
+def test_the_rule_equals_its_reference_computation():
+    """:func:`look_level` (tails and states that matter only) gives the bounds of the rule's definition computed
+    the straightforward way (``grt.bench.racing.reference_look_level``), and the same exact risk."""
+    from grt.bench.racing import reference_look_level, reference_risk
+
+    for total, rounds in ((5, 4), (13, 3), (32, 8), (64, 8), (100, 4), (128, 8)):
+        at = looks(total, rounds)
+        for bad in range(1, total + 1, max(1, total // 10)):
+            for alpha in (0.0, 0.01, 0.05, 0.3):
+                bounds = look_level(total, bad, at, alpha)
+                assert bounds == reference_look_level(total, bad, at, alpha), (total, rounds, bad, alpha)
+                assert math.isclose(_risk(total, bad, at, list(bounds)), reference_risk(total, bad, at, list(bounds)),
+                                    rel_tol=1e-12, abs_tol=1e-15)
+
+
+def test_a_run_racing_4096_trials_a_candidate_does_not_wait_on_the_rule(tmp_path):
+    """``budget.racing=true budget.trials=1024`` spent ~90 s per candidate in the main process computing the rule
+    while the workers idled (minutes at 1024, hours at the drawer protocol's 4096); a toy run of 4096 trials a
+    candidate now finishes, with raced candidates, well within the command's time limit."""
+    from tests.cli.test_run_faults import RUN, grt_run
+
+    run_dir = tmp_path / "run"
+    res = grt_run(*RUN, "budget.racing=true", "budget.trials=4096", f"hydra.run.dir={run_dir}")
+    assert res.returncode == 0, res.stderr[-3000:]
+    import json
+
+    records = [json.loads(line) for line in (run_dir / "journal.jsonl").read_text().splitlines()]
+    assert len(records) == 7 and any((r.get("race") or {}).get("stopped") for r in records)
