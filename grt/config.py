@@ -10,11 +10,10 @@ key names itself in the TypeError).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import field, fields, make_dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, get_type_hints
 
 import omegaconf
 from hydra.core.config_store import ConfigStore
@@ -22,6 +21,21 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from grt.errors import UserError
+from grt.geometry.prepare import MeshSettings
+from grt.plan import (  # noqa: F401 - the rules' vocabulary, re-exported for the apps' own settings
+    BOOLEAN,
+    BUDGET_KEYS,
+    POSITIVE,
+    POSITIVE_OR_NULL,
+    RISK,
+    Budget,
+    DeformerPlan,
+    Rule,
+    RunPlan,
+    at_least,
+    object_folder,
+    object_name,
+)
 from grt.settings import check_added_keys, check_sections
 from grt.targets import build_error, check_target, targets
 
@@ -30,82 +44,12 @@ class ConfigError(UserError):
     """A config value out of range or a key no schema knows; the message names the key and the fix."""
 
 
-@dataclass(frozen=True)
-class Rule:
-    """What one config value accepts: ``check(value) -> bool``, described by ``accepts`` in messages."""
-
-    accepts: str
-    check: Callable[[Any], bool]
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_positive(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-
-
-def at_least(low: int) -> Rule:
-    return Rule(f"an integer >= {low}", lambda v: _is_int(v) and v >= low)
-
-
-POSITIVE = Rule("a finite number > 0", _is_positive)
-POSITIVE_OR_NULL = Rule("null (off) or a finite number > 0", lambda v: v is None or _is_positive(v))
-BOOLEAN = Rule("true or false", lambda v: isinstance(v, bool))
-RISK = Rule("a number in [0, 0.5) (0: only stop a candidate that cannot matter even if every trial left fails)",
-            lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 0.5)
-
-
-def _field(default, rule: Rule, meaning: str):
-    return field(default=default, metadata={"rule": rule, "meaning": meaning})
-
-
-@dataclass
-class BudgetSchema:
-    """The numbers of a search (paper appendix, lines 1062-1099); each field's ``Rule`` is in its metadata.
-
-    Attributes:
-        population: candidates per iteration (paper: 10).
-        iterations: ``T`` (paper: 10).
-        trials: simulated episodes per candidate (paper: 64 for grasping).
-        sigma: std of the Gaussian over handle displacements, unit-cube units (paper: 0.001).
-        seed: seeds the optimizer and the episode seeds (paper: 42).
-        workers: simulator worker processes.
-        tau: Smoothness-Score budget in meters (``None``: off, or ``tau_rel``'s).
-        tau_rel: the budget relative to the object: a fraction of its bounding-box diagonal, converted to
-            meters per object (:func:`grt.optimizers.smoothness.budget_tau`); used when ``tau`` is ``None``.
-        top_k: CrashShapes saved in the run folder.
-        confirm_trials: fresh episodes on which the nominal object and each CrashShape are scored again
-            after the search, with a paired test of each drop (:mod:`grt.confirm`); 0 turns it off.
-        videos: CrashShapes whose failing trial (and the nominal object's on the same seed) are filmed
-            for ``report.html`` after the search (:mod:`grt.rerun`); 0 turns it off. ``report.videos``
-            of ``conf/run.yaml`` reads it.
-        racing: run each candidate's trials in rounds and stop it once it cannot be a CrashShape among the
-            ``top_k`` (:mod:`grt.racing`); off: every candidate runs every trial (as before racing existed).
-        race_rounds: rounds of about equal size a raced candidate's trials run in (at most one per trial).
-        race_alpha: the most probability with which racing stops a candidate that would have mattered.
-    """
-
-    population: int = _field(10, at_least(1), "candidates per iteration")
-    iterations: int = _field(10, at_least(1), "search iterations T")
-    trials: int = _field(64, at_least(1), "simulated episodes per candidate")
-    sigma: float = _field(0.001, POSITIVE, "std of the handle displacements, unit-cube units")
-    seed: int = _field(42, at_least(0), "seed of the optimizer and of the episode seeds")
-    workers: int = _field(2, at_least(1), "simulator worker processes")
-    tau: float | None = _field(None, POSITIVE_OR_NULL, "Smoothness-Score budget in meters")
-    tau_rel: float | None = _field(None, POSITIVE_OR_NULL, "Smoothness-Score budget as a fraction of the object's "
-                                   "bounding-box diagonal (used when budget.tau is null)")
-    top_k: int = _field(3, at_least(1), "CrashShapes saved in the run folder")
-    confirm_trials: int = _field(0, at_least(0), "fresh episodes re-scoring the nominal object and each "
-                                 "CrashShape after the search (0: off)")
-    videos: int = _field(3, at_least(0), "CrashShapes filmed for report.html after the search (0: off)")
-    racing: bool = _field(False, BOOLEAN, "race each candidate's trials in rounds, stopping one that cannot matter")
-    race_rounds: int = _field(8, at_least(2), "rounds a raced candidate's trials run in")
-    race_alpha: float = _field(0.05, RISK, "the most probability of stopping a candidate that would have mattered")
-
-
-BUDGET_KEYS = tuple(f.name for f in fields(BudgetSchema))
+#: The ``budget`` group's schema: :class:`grt.plan.Budget`'s fields (defaults, rules, meanings), as the
+#: mutable dataclass Hydra composes into (a frozen one would refuse the presets and overrides).
+BudgetSchema = make_dataclass(
+    "BudgetSchema", [(f.name, get_type_hints(Budget)[f.name], field(default=f.default, metadata=f.metadata))
+                     for f in fields(Budget)],
+    namespace={"__doc__": Budget.__doc__, "__module__": __name__})
 
 
 def check_budget(budget: Mapping) -> None:
@@ -234,21 +178,72 @@ def plain(node) -> dict | list:
     return OmegaConf.to_container(node, resolve=True)
 
 
-def object_name(spec: str) -> str:
-    """A short name for an object spec: the built-in name, or a file's stem."""
-    text = str(spec)
-    return Path(text).stem if ("/" in text or "." in text) else text
+def make_plan(cfg, choices: Mapping | None = None) -> RunPlan:
+    """The plan of one red-team run: its config parsed once (:mod:`grt.plan`).
+
+    Args:
+        cfg: the composed root config of ``grt.run``, or a run folder's saved config (a plain mapping).
+        choices: the run's config-group options; by default the running Hydra app's, else each group's
+            ``_target_`` module name (a test calling :func:`grt.runner.run` without Hydra).
+
+    Raises:
+        ScoreConfigError: a bad ``task.ci``, ``task.nominal_floor`` or ``task.crash_margin``.
+    """
+    if not isinstance(cfg, DictConfig):
+        cfg = OmegaConf.create(cfg)
+    score, floor, margin = RunPlan.task_settings(cfg.task)
+    return RunPlan(
+        run_dir=Path(cfg.resume or cfg.paths.output_dir), resume=bool(cfg.resume), object=str(cfg.object),
+        object_scale=float(cfg.get("object_scale", 1.0) or 1.0),
+        cache_dir=str(OmegaConf.select(cfg, "paths.cache_dir", default="~/.cache/grt")),
+        mesh=MeshSettings.from_config(cfg.get("mesh")), task=plain(cfg.task), policy=plain(cfg.policy),
+        **{key: plain(cfg[key]) if cfg.get(key) is not None else {} for key in _BUILT},
+        deformer=DeformerPlan.of(cfg.get("deformer") or {}), budget=Budget.of(cfg.budget), score=score,
+        nominal_floor=floor, crash_margin=margin,
+        report_videos=int(OmegaConf.select(cfg, "report.videos", default=0) or 0),
+        choices=dict(choices) if choices is not None else _choices(cfg), config=without_secrets(cfg),
+        record=_command_line())
 
 
-def object_folder(spec: str) -> str:
-    """The folder name of an object spec in run folders' paths: a built-in's name (``mug``), a mesh file's
-    name with its suffix (``mug.obj``; ``mug-file`` for a file without one), so the runs of a user's mesh
-    named like a built-in never land beside the built-in's."""
-    text = str(spec)
-    if not ("/" in text or "." in text):
-        return text
-    name = Path(text).name or text.strip("/").replace("/", "_")
-    return name if Path(name).suffix else f"{name}-file"
+#: The ``_target_`` nodes a run builds at run time (selector, optimizer, evaluator, logger).
+_BUILT = ("selector", "optimizer", "evaluator", "logger")
+
+
+def _choices(cfg: DictConfig) -> dict:
+    """The config-group options of a run: the running Hydra app's, else (no Hydra) each built group's and the
+    policy's ``_target_`` module name, which is the option's by convention."""
+    from hydra.core.hydra_config import HydraConfig
+
+    found = {str(k): v for k, v in plain(HydraConfig.get().runtime.choices).items()
+             if not (k == "hydra" or str(k).startswith("hydra/"))} if HydraConfig.initialized() else {}
+    for group in (*_BUILT, "policy"):
+        if group not in found and isinstance(cfg.get(group), DictConfig) and "_target_" in cfg[group]:
+            found[group] = str(cfg[group]["_target_"]).rsplit(".", 2)[-2]
+    return found
+
+
+def _command_line() -> dict:
+    """The running Hydra app's command line as a run's record keeps it: its overrides (``resume=`` left out)
+    and its config-group options (``hydra/*`` left out); empty outside Hydra."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    if not HydraConfig.initialized():
+        return {"overrides": [], "choices": {}}
+    hydra_cfg = HydraConfig.get()
+    parser = OverridesParser.create()
+    return {"overrides": [o for o in hydra_cfg.overrides.task if parser.parse_override(o).key_or_group != "resume"],
+            "choices": {k: v for k, v in plain(hydra_cfg.runtime.choices).items()
+                        if not (k == "hydra" or k.startswith(("hydra.", "hydra/")))}}
+
+
+def without_secrets(cfg: DictConfig) -> dict:
+    """The resolved config, but a served policy's shared secret (``policy.token``) as given — its
+    ``${oc.env:GRT_POLICY_TOKEN,null}`` — never its value: what run folders and loggers may keep."""
+    config = plain(cfg)
+    if isinstance(config.get("policy"), dict) and config["policy"].get("token") is not None:
+        config["policy"]["token"] = OmegaConf.to_container(cfg.policy, resolve=False)["token"]
+    return config
 
 
 _OMEGACONF_24 = tuple(int(p) for p in omegaconf.__version__.split(".")[:2]) >= (2, 4)

@@ -17,16 +17,14 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from omegaconf import DictConfig
 
 from grt import metrics
-from grt.config import object_name
 from grt.console import console as wide_console
 from grt.fileio import atomic_path, write_text_atomic
 from grt.geometry.quality import shape_change
-from grt.optimizers.smoothness import budget_tau
+from grt.plan import RunPlan
 from grt.racing import search_figures, stopped
-from grt.scores import ScoreSpec, crash_margin, is_crash
+from grt.scores import ScoreSpec, is_crash
 
 
 def git_state() -> dict:
@@ -188,36 +186,28 @@ def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
             entry.unlink()
 
 
-def run_tau(cfg: DictConfig, mesh: trimesh.Trimesh) -> tuple[float | None, str]:
-    """A run's Smoothness-Score cap in meters (``budget.tau``, else ``budget.tau_rel`` x the object's diagonal)
-    and the sentence that says so; runs from before ``tau_rel`` have none."""
-    return budget_tau(cfg.budget.tau, cfg.budget.get("tau_rel"), float(np.linalg.norm(mesh.extents)))
-
-
-def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, evaluator, wall_s: float,
-                  confirmation: dict | None = None, score: ScoreSpec | None = None) -> dict:
-    """Compute the paper's metrics from the journal and write every artifact of the run.
-
-    ``score``: the run's score spec, as :func:`grt.runner.run` worked it out (from ``cfg.task`` when not given).
+def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s: float,
+                  confirmation: dict | None = None) -> dict:
+    """Compute the paper's metrics from the journal and write every artifact of the run in ``plan.run_dir``.
 
     ``confirmation`` (:func:`grt.confirm.confirm`) adds ``confirm`` and ``confirmed_final_drop`` to the
     summary and each CrashShape's fresh-episode score to ``shapes.png``.
     """
     from grt.report.plots import plot_curve, plot_shapes
 
+    run_dir, budget, score, margin = plan.run_dir, plan.budget, plan.score, plan.crash_margin
     _remove_except(run_dir, set(), re.compile(_TEMP))  # temporary files of a write a kill interrupted
     records = result.records
-    score = score or ScoreSpec.from_task(cfg.task)
     nominal = next(r for r in records if r["iteration"] == 0)
     summ = metrics.summarize(result.s0, result.iteration_scores)
+    tau, tau_how = plan.smoothness_cap(deformer.mesh)
     explored = [(r["score"], r["entropy"]) for r in records if r["iteration"] >= 1 and r["entropy"] is not None]
-    margin = crash_margin(cfg.task)
-    crashes = crash_records(records, cfg.budget.top_k, result.s0, margin)
-    best = crashes or crash_records(records, cfg.budget.top_k)  # none failed: the best candidates, named so
+    crashes = crash_records(records, budget.top_k, result.s0, margin)
+    best = crashes or crash_records(records, budget.top_k)  # none failed: the best candidates, named so
     summary = {
-        "task": cfg.task.name, "object": object_name(cfg.object), "object_spec": str(cfg.object),
-        "selector": _choice(cfg, "selector"), "optimizer": _choice(cfg, "optimizer"),
-        "policy": _choice(cfg, "policy"), **score.fields(),
+        "task": plan.task["name"], "object": plan.object_name, "object_spec": plan.object,
+        "selector": str(plan.choices.get("selector")), "optimizer": str(plan.choices.get("optimizer")),
+        "policy": str(plan.choices.get("policy")), **score.fields(),
         "s0": result.s0, "s0_ci95": nominal.get("ci95"),
         "crash_margin": margin, "crashshape_found": bool(crashes),
         "best_score": best[0]["score"] if best else None, "best_ci95": best[0].get("ci95") if best else None,
@@ -226,10 +216,10 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         if nominal.get("entropy") is not None else None,
         "nominal_entropy": nominal.get("entropy"),
         "num_handles": int(len(handle_set.handles)), "num_anchors": int(len(handle_set.anchors)),
-        "population": cfg.budget.population, "iterations": cfg.budget.iterations,
-        "trials": cfg.budget.trials, "sigma": cfg.budget.sigma, "tau": run_tau(cfg, deformer.mesh)[0],
-        "tau_rel": cfg.budget.get("tau_rel") if cfg.budget.tau is None else None, "tau_how": run_tau(cfg, deformer.mesh)[1],
-        "seed": cfg.budget.seed,
+        "population": budget.population, "iterations": budget.iterations,
+        "trials": budget.trials, "sigma": budget.sigma, "tau": tau,
+        "tau_rel": budget.tau_rel if budget.tau is None else None, "tau_how": tau_how,
+        "seed": budget.seed,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         # simulator trials behind the journal (racing: a stopped candidate counts the trials it ran), per
         # iteration, and up to the first (confirmed) CrashShape of the top-k
@@ -244,13 +234,13 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
         "self_intersecting": sum(1 for r in records if r["iteration"] >= 1 and r.get("self_intersections", 0) > 0),
         # deformer.validity=false: nothing was checked, so the counts above are not "none refused"
         "validity_checked": any("valid" in r for r in records if r["iteration"] >= 1),
-        "max_volume_change": cfg.deformer.get("max_volume_change") if cfg.deformer.get("validity") else None,
+        "max_volume_change": plan.deformer.max_volume_change if plan.deformer.validity else None,
     }
     raced = [r for r in records if r["iteration"] >= 1 and r.get("race")]
-    cannot_race = bool(cfg.budget.get("racing")) and not raced and not getattr(evaluator, "races", False)
-    if cfg.budget.get("racing") and not cannot_race:  # what racing saved; the metrics above count full-trial
-        summary["racing"] = {  # candidates only
-            "rounds": cfg.budget.race_rounds, "alpha": cfg.budget.race_alpha, "top_k": cfg.budget.top_k,
+    cannot_race = budget.racing and not raced and not getattr(evaluator, "races", False)
+    if budget.racing and not cannot_race:  # what racing saved; the metrics above count full-trial candidates
+        summary["racing"] = {  # only
+            "rounds": budget.race_rounds, "alpha": budget.race_alpha, "top_k": budget.top_k,
             "stopped": sum(stopped(r) for r in raced), "full": sum(not stopped(r) for r in raced),
             "trials_all": len(next(r for r in records if r["iteration"] == 0)["trials"]) * (1 + len(raced)),
             "why": {why: sum(r["race"]["stopped"] == why for r in raced) for why in
@@ -267,7 +257,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
                      "object; relative drops need a positive S0 and are undefined")
     tried = sum(1 for r in records if r["iteration"] >= 1)
     if tried and summary["invalid_candidates"] == tried:
-        notes.append(implausible_note(tried, len(handle_set.handles), cfg.budget.sigma))
+        notes.append(implausible_note(tried, len(handle_set.handles), budget.sigma))
     if not crashes:
         notes.append(no_crashshape_note(margin, len(best)))
     if notes:
@@ -275,7 +265,7 @@ def write_outputs(cfg: DictConfig, run_dir: Path, result, deformer, handle_set, 
     meshes = deformer.meshes(np.asarray([r["theta"] for r in best])) if best else []
     folder, other = ("crashshapes", "best") if crashes else ("best", "crashshapes")
     entries = save_crashshapes(run_dir, best, meshes, evaluator, folder=folder,
-                               scale=float(cfg.get("object_scale", 1.0) or 1.0))
+                               scale=plan.object_scale)
     for entry, mesh in zip(entries, meshes, strict=True):  # how far each is from the nominal (issue 33 §4)
         entry.update(shape_change(deformer.mesh, mesh))
     summary["crashshapes"] = entries if crashes else []
@@ -328,16 +318,6 @@ def deformer_summary(deformer) -> dict:
         out.update(radius=core.radius, radius_m=core.region_radius * deformer.meters_per_unit,
                    released_anchors=core.released_anchors.tolist())
     return out
-
-
-def _choice(cfg: DictConfig, group: str) -> str:
-    """The group option of the run (``heuristic``, ``topdm``...); without Hydra (a test calling
-    ``run(cfg)``) it is read from the ``_target_`` module, whose name is the option's by convention."""
-    from hydra.core.hydra_config import HydraConfig
-
-    if HydraConfig.initialized() and group in HydraConfig.get().runtime.choices:
-        return str(HydraConfig.get().runtime.choices.get(group))
-    return str(cfg[group]["_target_"]).rsplit(".", 2)[-2]
 
 
 def print_summary(summary: dict, run_dir: Path) -> None:

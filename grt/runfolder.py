@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import copy
 import errno
 import fcntl
 import os
@@ -50,6 +51,7 @@ from grt.errors import OutputError, UserError
 from grt.fileio import write_text_atomic
 from grt.geometry.deform import DEFAULT_RADIUS
 from grt.journal import JournalError
+from grt.plan import RunPlan
 from grt.scores import ScoreConfigError, nominal_floor
 
 # A run's own config, written once when it starts; what ``resume=DIR`` reads.
@@ -222,34 +224,22 @@ register()
 
 # --------------------------------------------------------------------------------- writing and reading
 
-def without_secrets(cfg: DictConfig) -> dict:
-    """The resolved config, but a served policy's shared secret (``policy.token``) as given — its
-    ``${oc.env:GRT_POLICY_TOKEN,null}`` — never its value: what run folders and loggers may keep."""
-    config = plain(cfg)
-    if isinstance(config.get("policy"), dict) and config["policy"].get("token") is not None:
-        config["policy"]["token"] = OmegaConf.to_container(cfg.policy, resolve=False)["token"]
-    return config
-
-
-def save_run_config(cfg: DictConfig, run_dir: Path) -> None:
-    """Write the run's own record once, read-only: what ``resume=`` reads, so no later command rewrites it.
+def save_run_config(plan: RunPlan) -> None:
+    """Write the run's own record once, read-only, in ``plan.run_dir``: what ``resume=`` reads, so no later
+    command rewrites it.
 
     ``overrides`` and ``choices`` are its command line and config-group options (Hydra's; empty when
-    :func:`grt.runner.run` is called without Hydra), ``config`` its resolved config.
+    :func:`grt.runner.run` is called without Hydra), ``config`` its resolved config (a served policy's secret
+    as given), its nominal floor written out.
     """
-    path = run_dir / RUN_CONFIG
+    path = plan.run_dir / RUN_CONFIG
     if path.exists():
         return
-    hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
-    config = {**without_secrets(cfg), "resume": None}
-    _set_absent(config, "task.nominal_floor", _floor(config))  # every FROM_COMMAND key a run reads is here
-    record = {
-        FORMAT_KEY: FORMAT,
-        "overrides": [o for o in hydra_cfg.overrides.task if _key(o) != "resume"] if hydra_cfg else [],
-        "choices": {k: v for k, v in plain(hydra_cfg.runtime.choices).items() if not _under(k, ("hydra",))}
-        if hydra_cfg else {},
-        "config": config,
-    }
+    config = {**copy.deepcopy(plan.config), "resume": None}
+    if isinstance(config.get("task"), dict):  # every FROM_COMMAND key a run reads is here
+        config["task"].setdefault("nominal_floor", plan.nominal_floor)
+    record = {FORMAT_KEY: FORMAT, "overrides": list(plan.record.get("overrides", [])),
+              "choices": dict(plan.record.get("choices", {})), "config": config}
     write_text_atomic(path, f"# {RUN_CONFIG}: this run as it started (written once by grt.run). Continue it "
                       f"with\n# python -m grt.run resume=<this folder>\n" + OmegaConf.to_yaml(record))
     path.chmod(0o444)

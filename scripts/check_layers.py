@@ -33,7 +33,7 @@ LAYERS: dict[str, int] = {
     "grt.objects": 1,
     "grt.geometry": 2,
     "grt.optimizers": 3, "grt.metrics": 3, "grt.scores": 3, "grt.racing": 3,
-    "grt.config": 4, "grt.settings": 4, "grt.targets": 4,
+    "grt.config": 4, "grt.settings": 4, "grt.targets": 4, "grt.plan": 4,
     "grt.selectors": 5, "grt.policies": 5,
     "grt.tasks": 6,
     "grt.evaluators": 7,

@@ -166,14 +166,15 @@ def test_a_finished_run_resumed_has_nothing_to_do_and_changes_nothing(run_copy):
     res = grt_run(f"resume={run_copy}", "budget.confirm_trials=4")
     assert res.returncode == 0, res.stderr[-3000:]
     assert json.loads((run_copy / "summary.json").read_text())["confirm"]["trials"] == 4
+    from grt.config import make_plan
     from grt.runfolder import load_run_config
     from grt.runner import nothing_to_do
 
     cfg = load_run_config(run_copy)  # as the command resolves it, in this process
     cfg.budget.confirm_trials = 4
-    assert nothing_to_do(run_copy, cfg).startswith("nothing to do:")  # confirmed: nothing to do again
+    assert nothing_to_do(run_copy, make_plan(cfg)).startswith("nothing to do:")  # confirmed: nothing to do again
     cfg.budget.confirm_trials = 6
-    assert nothing_to_do(run_copy, cfg) is None
+    assert nothing_to_do(run_copy, make_plan(cfg)) is None
 
 
 def test_an_edited_record_is_refused_before_anything_is_written(run_copy):

@@ -291,13 +291,14 @@ def test_a_server_that_stays_down_stops_the_evaluation(u_mesh, tmp_path, toy_pat
 def test_the_token_is_never_written_into_the_run_folder(tmp_path, monkeypatch):
     from omegaconf import OmegaConf
 
+    from grt.config import make_plan
     from grt.runfolder import RUN_CONFIG, save_run_config
     from tests.runner.conftest import compose_run
 
     monkeypatch.setenv("GRT_POLICY_TOKEN", "s3cret-value")
     cfg = compose_run(["policy=remote", f"paths.output_dir={tmp_path}"])
     assert cfg.policy.token == "s3cret-value"
-    save_run_config(cfg, tmp_path)
+    save_run_config(make_plan(cfg))
     assert "s3cret-value" not in (tmp_path / RUN_CONFIG).read_text()
     saved = OmegaConf.load(tmp_path / RUN_CONFIG)["config"]
     assert saved.policy.token == "s3cret-value"  # a resume reads it from the environment

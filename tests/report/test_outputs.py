@@ -7,11 +7,13 @@ shrinks as the object swells, plus seeded noise (so trials differ and the interv
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from grt import metrics
+from grt.config import make_plan
 from grt.evaluators.base import CandidateResult, Evaluator
 from grt.geometry.deform import ShapeDeformer
 from grt.geometry.mesh import load_mesh
@@ -57,7 +59,7 @@ def drawer_run(tmp_path_factory):
     loop = RedTeamLoop(deformer, optimizer, evaluator, Journal(run_dir / "journal.jsonl"), episode_seeds(0, 6),
                        iterations=2, ci="bootstrap")
     result = loop.run()
-    summary = write_outputs(cfg, run_dir, result, deformer, handles, evaluator, wall_s=1.0)
+    summary = write_outputs(make_plan(cfg), result, deformer, handles, evaluator, wall_s=1.0)
     return run_dir, result, summary
 
 
@@ -118,7 +120,7 @@ def test_a_run_whose_every_candidate_folds_says_so_and_how_to_fix_it(tmp_path, c
     with caplog.at_level("WARNING", logger="grt.run"):
         result = loop.run()
     assert "iteration 1: all 3 candidates were implausible" in caplog.text
-    summary = write_outputs(cfg, tmp_path, result, deformer, handles, OpeningEvaluator(mesh.volume), wall_s=1.0)
+    summary = write_outputs(make_plan(cfg), result, deformer, handles, OpeningEvaluator(mesh.volume), wall_s=1.0)
     assert summary["invalid_candidates"] == 3 and summary["best_score"] is None
     stored = json.loads((tmp_path / "summary.json").read_text())
     assert "all 3 candidates were implausible" in stored["note"] and "lower budget.sigma" in stored["note"]
@@ -133,7 +135,7 @@ def test_a_run_whose_every_candidate_folds_says_so_and_how_to_fix_it(tmp_path, c
     loop = RedTeamLoop(deformer, TOPDMOptimizer(len(handles.handles), population=3, sigma=0.8, seed=0),
                        OpeningEvaluator(mesh.volume), Journal(unchecked / "journal.jsonl"), episode_seeds(0, 2),
                        iterations=1, ci="bootstrap")
-    summary = write_outputs(cfg, unchecked, loop.run(), deformer, handles, OpeningEvaluator(mesh.volume), wall_s=1.0)
+    summary = write_outputs(replace(make_plan(cfg), run_dir=unchecked), loop.run(), deformer, handles, OpeningEvaluator(mesh.volume), wall_s=1.0)
     assert summary["validity_checked"] is False and summary["invalid_candidates"] == 0
     assert "implausible" not in summary.get("note", "")  # (it may say that no CrashShape was found)
     print_summary(summary, unchecked)

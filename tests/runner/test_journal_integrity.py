@@ -15,6 +15,7 @@ import pytest
 import trimesh
 
 from grt.cli._common import find_user_error
+from grt.config import make_plan
 from grt.fileio import atomic_path, write_text_atomic
 from grt.journal import Journal, JournalError
 from grt.outputs import save_crashshapes, write_outputs
@@ -189,14 +190,14 @@ def test_write_outputs_rewrite_matches_the_summary_and_leaves_no_temp_files(tmp_
     cfg = compose_run(["object=can", "budget=smoke", "budget.top_k=2", f"paths.output_dir={tmp_path}"])
     loop, ev = make_loop(tmp_path)
     result = loop.run()
-    first = write_outputs(cfg, tmp_path, result, loop.deformer, _handles(loop), ev, wall_s=1.0)
+    first = write_outputs(make_plan(cfg), result, loop.deformer, _handles(loop), ev, wall_s=1.0)
     found = first["crashshape_found"]  # no failure: the best candidates are written to best/ instead
     folder, key, other = ("crashshapes", "crashshapes", "best") if found else ("best", "best_candidates", "crashshapes")
     for name in (folder, other):  # an earlier session's rank 1 and parts, in either folder
         (tmp_path / name).mkdir(exist_ok=True)
         (tmp_path / name / "rank1_it9_c9.stl").write_text("stale")
         (tmp_path / name / "rank3_it1_c2_parts").mkdir(exist_ok=True)
-    summary = write_outputs(cfg, tmp_path, result, loop.deformer, _handles(loop), ev, wall_s=1.0)
+    summary = write_outputs(make_plan(cfg), result, loop.deformer, _handles(loop), ev, wall_s=1.0)
     stls = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / folder).glob("*.stl"))
     assert stls == sorted(s["file"] for s in summary[key])
     assert not (tmp_path / folder / "rank3_it1_c2_parts").exists() and not list((tmp_path / other).glob("rank*"))

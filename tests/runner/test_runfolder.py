@@ -18,6 +18,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from grt.blueteam.core import load_run
+from grt.config import make_plan
 from grt.runfolder import (
     FORMAT,
     FORMAT_KEY,
@@ -108,7 +109,7 @@ def test_a_format_0_folder_is_read_from_hydras_record(release_run):
 
 def test_a_new_record_carries_the_format(tmp_path):
     cfg = compose_run(["budget=smoke", f"paths.output_dir={tmp_path}"])
-    save_run_config(cfg, tmp_path)
+    save_run_config(make_plan(cfg))
     record = OmegaConf.load(tmp_path / RUN_CONFIG)
     assert record[FORMAT_KEY] == FORMAT == 2
     assert (tmp_path / RUN_CONFIG).stat().st_mode & 0o222 == 0
