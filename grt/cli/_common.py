@@ -30,7 +30,6 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.errors import (
     ConfigCompositionException,
     HydraException,
@@ -390,15 +389,60 @@ def recorded_config_dir(overrides: list[str]) -> str | None:
     return None
 
 
-def resumable_cli(main: Callable, config_name: str, kind, argv: list[str] | None = None) -> None:
-    """Run the Hydra app ``main`` (config ``config_name``) from the command line, a ``resume=DIR`` first
-    checked and made the folder's own command for its ``kind`` (:data:`grt.runfolder.TRAINING`, ``STUDY``)
-    before Hydra starts, as ``grt-run`` does (:func:`grt.cli.run.cli`); ``sys.argv`` is left as it is."""
-    parser = get_args_parser()
-    args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+#: The flags of a Hydra app's command line (``@hydra.main``'s), by the name argparse gives each: ``None`` for a
+#: switch, else the values it takes (``()``: any; ``info`` alone may also be given without one).
+HYDRA_FLAGS: dict[str, tuple[str, ...] | None] = {
+    "help": None, "hydra_help": None, "version": None, "resolve": None, "run": None, "multirun": None,
+    "shell_completion": None, "cfg": ("job", "hydra", "all"), "package": (), "config_path": (), "config_name": (),
+    "config_dir": (), "experimental_rerun": (),
+    "info": ("all", "config", "defaults", "defaults-tree", "plugins", "searchpath")}
+_SHORT = {"help": "-h", "cfg": "-c", "package": "-p", "run": "-r", "multirun": "-m", "shell_completion": "-sc",
+          "config_path": "-cp", "config_name": "-cn", "config_dir": "-cd", "info": "-i"}
+
+
+def parse_command(argv: list[str] | None = None) -> argparse.Namespace:
+    """A Hydra app's command line (``sys.argv[1:]`` by default): its ``overrides`` and flags, read as
+    ``@hydra.main`` reads them, so that GRT can check and rewrite the overrides before Hydra starts
+    (:func:`launch` hands the command on)."""
+    parser = argparse.ArgumentParser(add_help=False, prog=Path(sys.argv[0]).name)
+    parser.add_argument("overrides", nargs="*")
+    for name, values in HYDRA_FLAGS.items():
+        flags = [f"--{name.replace('_', '-')}", *([_SHORT[name]] if name in _SHORT else [])]
+        if values is None:
+            parser.add_argument(*flags, dest=name, action="store_true")
+        elif name == "info":
+            parser.add_argument(*flags, dest=name, nargs="?", const="all", choices=values)
+        else:
+            parser.add_argument(*flags, dest=name, choices=values or None)
+    return parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+
+
+def launch(app: Callable[[], object], args: argparse.Namespace) -> None:
+    """Run the ``@hydra.main`` ``app`` on the command line ``args`` (:func:`parse_command`'s, its overrides
+    perhaps rewritten: a resume's) through Hydra's public entry point: ``app()`` reads the process's
+    arguments, which are the command ``args`` gives while it runs and are restored after it."""
+    command = []
+    for name, values in HYDRA_FLAGS.items():
+        value, flag = getattr(args, name), "--" + name.replace("_", "-")
+        if values is None and value:
+            command.append(flag)
+        elif values is not None and value is not None:
+            command.append(f"{flag}={value}")
+    given = sys.argv
+    sys.argv = [given[0], *command, *args.overrides]
+    try:
+        app()
+    finally:
+        sys.argv = given
+
+
+def resumable_cli(main: Callable, kind, argv: list[str] | None = None) -> None:
+    """Run the Hydra app ``main`` from the command line, a ``resume=DIR`` first checked and made the folder's
+    own command for its ``kind`` (:data:`grt.runfolder.TRAINING`, ``STUDY``) before Hydra starts, as
+    ``grt-run`` does (:func:`grt.cli.run.cli`)."""
+    args = parse_command(argv)
     with exit_on_user_error():
         if any("resume=" in arg for arg in args.overrides):
             args.overrides = resume_overrides(args.overrides, kind)
             args.config_dir = args.config_dir or recorded_config_dir(args.overrides)  # the user's config folder
-    run_cli(lambda: _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR,
-                               config_name=config_name))
+    run_cli(lambda: launch(main, args))

@@ -77,4 +77,4 @@ def main(cfg: DictConfig) -> None:
 
 def cli(argv: list[str] | None = None) -> None:
     """The console script ``grt-blueteam``: a ``resume=`` becomes the folder's own command before Hydra starts."""
-    resumable_cli(main, "blueteam", STUDY, argv)
+    resumable_cli(main, STUDY, argv)

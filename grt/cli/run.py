@@ -40,16 +40,23 @@ import traceback
 from pathlib import Path
 
 import hydra
-from hydra._internal.utils import _run_hydra, get_args_parser
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, recorded_config_dir, run_cli
+from grt.cli._common import (
+    CONF_DIR,
+    exit_on_user_error,
+    find_user_error,
+    launch,
+    parse_command,
+    recorded_config_dir,
+    run_cli,
+)
 from grt.cli.launchers import check_launcher, unfinished_job
 from grt.cli.sweeps import STARTED, sweep_end
-from grt.config import validate
+from grt.config import make_plan, validate
 from grt.errors import INTERRUPTED, TERMINATED, Terminated
 from grt.runfolder import (
     discard_new,
@@ -120,18 +127,17 @@ def _finished(overrides: list[str]) -> str | None:
             return None
         if o.key_or_group == "budget.confirm_trials":
             OmegaConf.update(cfg, o.key_or_group, o.value(), merge=False)
-    return nothing_to_do(run_dir, cfg)
+    return nothing_to_do(run_dir, make_plan(cfg))
 
 
 def cli(argv: list[str] | None = None) -> None:
     """``grt-run``: a ``resume=`` is checked, and becomes the run's own command, before Hydra starts.
 
-    The command line is parsed with the parser ``hydra.main`` itself uses, and the parsed arguments (with a
-    resume's overrides) go to Hydra's own runner, as ``hydra.main`` hands them over: ``sys.argv`` is left
-    as it is.
+    The command line is read as ``@hydra.main`` reads it (:func:`grt.cli._common.parse_command`), and the
+    command (with a resume's overrides) goes to :func:`main` through Hydra's public entry point
+    (:func:`grt.cli._common.launch`); ``sys.argv`` is as it was when this returns.
     """
-    parser = get_args_parser()
-    args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+    args = parse_command(argv)
     with exit_on_user_error():
         launches = args.multirun and not (args.help or args.hydra_help)
         if launches:  # hydra/launcher=slurm where SLURM is missing: refused before anything is written
@@ -144,10 +150,10 @@ def cli(argv: list[str] | None = None) -> None:
                 print(line, flush=True)
                 return
 
-    def launch() -> None:
+    def run_app() -> None:
         started = len(STARTED)
         try:
-            _run_hydra(args=args, args_parser=parser, task_function=main, config_path=CONF_DIR, config_name="run")
+            launch(main, args)
         except Exception as exc:
             line = unfinished_job(exc)  # a submitit job that died (killed, out of time or memory)
             if line is None:
@@ -159,4 +165,4 @@ def cli(argv: list[str] | None = None) -> None:
             if code:
                 raise SystemExit(code)
 
-    run_cli(launch)
+    run_cli(run_app)

@@ -94,4 +94,4 @@ def training_success(result: dict, patience) -> str:
 
 def cli(argv: list[str] | None = None) -> None:
     """The console script ``grt-train``: a ``resume=`` becomes the folder's own command before Hydra starts."""
-    resumable_cli(main, "train_policy", TRAINING, argv)
+    resumable_cli(main, TRAINING, argv)
