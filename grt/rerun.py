@@ -26,6 +26,7 @@ import numpy as np
 
 from grt.errors import UserError
 from grt.fileio import write_text_atomic
+from grt.tasks.renderer import renderer_problem
 
 log = logging.getLogger("grt.rerun")
 
@@ -390,18 +391,6 @@ def write_video(frames: list[np.ndarray], path: Path, fps: int = VIDEO_FPS) -> P
             break
     os.replace(tmp, path)
     return path
-
-
-def renderer_problem() -> str | None:
-    """Why this machine cannot film (one line), or ``None`` when SAPIEN's renderer works."""
-    try:
-        import sapien
-
-        sapien.render.RenderSystem()  # raises where no Vulkan device (lavapipe on a CPU) is found
-    except Exception as exc:  # noqa: BLE001 - any failure means no videos, said in one line
-        return f"no working renderer on this machine ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}); " \
-               "SAPIEN needs Vulkan (Mesa lavapipe on a CPU: apt-get install mesa-vulkan-drivers)"
-    return None
 
 
 def render_videos(run_dir: Path, summary: dict, count: int) -> dict:

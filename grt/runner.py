@@ -49,7 +49,7 @@ from grt.runfolder import (
 from grt.scores import ScoreSpec, check_nominal_floor
 from grt.selectors.base import HandleSet
 from grt.targets import build
-from grt.tasks import preflight, task_description, task_object
+from grt.tasks import check_fit, preflight, task_description, task_object
 
 log = logging.getLogger("grt.run")
 
@@ -105,6 +105,7 @@ def red_team(plan: RunPlan) -> dict:
 def prepare_object(plan: RunPlan) -> trimesh.Trimesh:
     """The nominal object as the run deforms it (meters), checked before anything is written: its size, a
     resume's object against the run's own, and the task and policy it is for; every repair is printed."""
+    check_fit(plan.task, plan.policy)  # no Vulkan, a policy of another kind: before the object is prepared
     mesh = load_mesh(task_object(plan.task, plan.object, plan.cache_dir), scale=plan.object_scale,
                      settings=plan.mesh)
     check_object_size(mesh)  # a mesh in millimetres

@@ -108,6 +108,8 @@ def check_sections(cfg: DictConfig) -> None:
     Raises:
         UserError: one line naming the key and what it accepts.
     """
+    check_resolves(cfg)
+    check_task_session(cfg.get("task"))
     deformer = cfg.get("deformer")
     if isinstance(deformer, DictConfig):
         check_deformer(deformer)
@@ -125,6 +127,53 @@ def check_sections(cfg: DictConfig) -> None:
         ScoreSpec.from_task(task)
         nominal_floor(task)
         crash_margin(task)
+
+
+def check_resolves(cfg: DictConfig) -> None:
+    """Refuse a config whose ``${...}`` interpolations read a key it does not have (a task YAML without the
+    ``env_id`` its ``session.env_id: ${..env_id}`` reads), before anything is built or written.
+
+    Raises:
+        SettingError: names the key, what it reads, and the key to add.
+    """
+    from omegaconf.errors import InterpolationResolutionError
+
+    try:
+        OmegaConf.to_container(cfg, resolve=True)
+    except InterpolationResolutionError as exc:
+        key = str(getattr(exc, "full_key", "") or "")
+        parent, _, name = key.rpartition(".")
+        node = OmegaConf.select(cfg, parent) if parent else cfg
+        raw = node._get_node(name)._value() if isinstance(node, DictConfig) and name in node else None
+        reads = f" ({key}: {raw})" if raw is not None else ""
+        missing = _absolute(key, str(raw)) if isinstance(raw, str) else None
+        fix = (f"add {missing.rpartition('.')[2]}: to the {missing.partition('.')[0]} config (or give "
+               f"{missing}=VALUE)" if missing else "give the key it reads")
+        raise SettingError(f"{key} reads a setting the config does not have{reads}: "
+                           f"{str(exc).splitlines()[0]}; {fix}") from None
+
+
+def _absolute(key: str, interpolation: str) -> str | None:
+    """The full key a relative interpolation ``${..env_id}`` at ``key`` reads (``task.env_id``), or ``None``."""
+    if not (interpolation.startswith("${.") and interpolation.endswith("}")):
+        return None
+    body = interpolation[2:-1]
+    dots = len(body) - len(body.lstrip("."))
+    parts = key.split(".")[:-1]
+    return ".".join([*parts[: len(parts) - (dots - 1)], body[dots:]]) if dots - 1 <= len(parts) else None
+
+
+def check_task_session(task) -> None:
+    """A task config whose ``session`` names no class (``_target_`` left out of a user's task YAML).
+
+    Raises:
+        SettingError: names the key and the session class of a ManiSkill task.
+    """
+    session = task.get("session") if isinstance(task, DictConfig) else None
+    if isinstance(session, DictConfig) and "_target_" not in session:
+        raise SettingError(f"task.session of task {task.get('name')!r} has no _target_: name the session class "
+                           "in the task YAML (a ManiSkill task: _target_: "
+                           "grt.tasks.maniskill.session.ManiSkillSession)")
 
 
 def check_deformer(node) -> None:

@@ -24,6 +24,7 @@ import contextlib
 import dataclasses
 import difflib
 import os
+import re
 import signal
 import sys
 import threading
@@ -165,7 +166,8 @@ def exit_on_user_error(*also: type[BaseException]):
         print(stop, file=sys.stderr)
         raise SystemExit(code) from None
     except Exception as exc:
-        found = find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc) or _search_path_error(exc)
+        found = (find_user_error(exc, also) or _compose_error(exc) or _launcher_error(exc) or _search_path_error(exc)
+                 or yaml_error(exc))
         if found is None:
             raise
         removed = _discard_run_folder()
@@ -281,6 +283,13 @@ def _compose_error(exc: BaseException) -> str | None:
         return quoting_hint(exc.override, text)
     if isinstance(cause, OmegaConfBaseException):
         text += "; " + one_line(str(cause))
+    merge = re.match(r"Error merging override ([^=\s]+)=(.*); Cannot merge (DictConfig with ListConfig|ListConfig "
+                     r"with DictConfig)", text)
+    if merge:  # a mapping given where the YAML holds a list (failure_flags), or the reverse
+        key, value = merge.group(1), merge.group(2)
+        kind = "a list" if merge.group(3).startswith("DictConfig") else "a mapping"
+        return (f"{key} is {kind} in the config, and Hydra merges only the same kind into it; to give "
+                f"{value} instead, replace it: '~{key}' '+{key}={value}'")
     hint = budget_hint(key)
     return f"{text}; {hint}" if hint else text
 
@@ -340,6 +349,25 @@ def _launcher_error(exc: BaseException) -> UserError | None:
             return no_slurm("submitit_slurm")
         exc = exc.__cause__ or exc.__context__
     return None
+
+
+def yaml_error(exc: BaseException) -> str | None:
+    """One line for a config file YAML cannot read (a syntax error, a TAB indent), found anywhere in the chain
+    of ``exc``: the file, line and column and what YAML expected; ``None`` for other errors."""
+    import yaml
+
+    for _ in range(10):
+        if exc is None or isinstance(exc, yaml.YAMLError):
+            break
+        exc = exc.__cause__ or exc.__context__
+    if not isinstance(exc, yaml.MarkedYAMLError) or exc.problem_mark is None:
+        return None
+    mark = exc.problem_mark
+    where = f"{mark.name}, line {mark.line + 1}, column {mark.column + 1}"
+    what = ", ".join(filter(None, [exc.problem, exc.context])).replace("character '\\t'", "a TAB character")
+    fix = ("YAML indents with spaces only: replace the TAB with spaces" if "'\\t'" in exc.problem else
+           "fix the YAML there (a bracket or quote left open, a colon where a value should be, an indent)")
+    return f"{where}: YAML cannot read the config file ({what}); {fix}"
 
 
 def _search_path_error(exc: BaseException) -> str | None:

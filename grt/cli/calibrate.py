@@ -24,7 +24,7 @@ from grt.evaluators.worker_env import run_in_worker, worker_path
 from grt.geometry.mesh import load_mesh
 from grt.geometry.prepare import MeshSettings
 from grt.redteam import episode_seeds
-from grt.tasks import TaskInputError, preflight, session_class, task_object
+from grt.tasks import TaskInputError, check_fit, preflight, session_class, task_object
 
 
 def calibrate_task(cfg: DictConfig, out_dir: Path) -> dict:
@@ -42,6 +42,7 @@ def calibrate_task(cfg: DictConfig, out_dir: Path) -> dict:
     if not issubclass(session_class(task), ManiSkillSession):
         raise TaskInputError(f"task={cfg.task.name} is not a ManiSkill task (its session is "
                              f"{task['session']['_target_']}): calibration compares a swapped actor with the stock one")
+    check_fit(task, plain(cfg.policy))  # no Vulkan, a policy of another kind: before the env is built
     mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), settings=MeshSettings.from_config(cfg.mesh))
     preflight(task, plain(cfg.policy), mesh)
     parts = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", int(cfg.max_hull_vertices)).parts(mesh)

@@ -37,7 +37,7 @@ from grt.geometry.prepare import describe as describe_preparation
 from grt.redteam import episode_seeds
 from grt.scores import ScoreSpec
 from grt.targets import build
-from grt.tasks import preflight, task_object
+from grt.tasks import check_fit, preflight, task_object
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +52,7 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     """
     score = ScoreSpec.from_task(cfg.task)
     scale = cfg.get("object_scale", 1.0)
+    check_fit(plain(cfg.task), plain(cfg.policy))  # no Vulkan, a policy of another kind: before the mesh
     mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), scale=scale,
                      settings=MeshSettings.from_config(cfg.get("mesh")))
     check_object_size(mesh)  # a mesh in millimetres: refused before any simulation

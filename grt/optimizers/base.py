@@ -10,6 +10,7 @@ Optimizers are deterministic given their seed, which is what makes a run resumab
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 
 import numpy as np
@@ -39,8 +40,11 @@ class Optimizer(ABC):
             why = f" ({self.min_population_reason})" if self.min_population_reason else ""
             raise ValueError(f"{type(self).__name__} needs a population of at least {self.min_population}{why}, "
                              f"got {population}")
-        if not sigma > 0:
-            raise ValueError(f"sigma must be > 0 (unit-cube units), got {sigma}")
+        if not 0 < sigma < math.inf:
+            raise ValueError(f"sigma must be a finite number > 0 (unit-cube units), got {sigma}")
+        if not math.isfinite(float(mu0)):
+            raise ValueError(f"optimizer.mu0={mu0}: the mean of the first candidates must be a finite number "
+                             "(unit-cube units; the paper's is 0)")
         self.num_handles, self.population = int(num_handles), int(population)
         self.sigma, self.mu0 = float(sigma), float(mu0)
         self.rng = np.random.default_rng(seed)

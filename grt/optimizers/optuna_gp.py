@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
@@ -29,9 +30,13 @@ class OptunaGPOptimizer(Optimizer):
     def __init__(self, num_handles: int, population: int = 10, sigma: float = 0.001, seed: int = 0,
                  mu0: float = 0.0, iterations: int = 10, n_startup: int | None = None, bound: float = 3.0):
         super().__init__(num_handles, population, sigma, seed, mu0)
+        if n_startup is not None and (isinstance(n_startup, bool) or float(n_startup) != int(n_startup)):
+            raise ValueError(f"optimizer.n_startup={n_startup}: the initial design's size is a whole number of "
+                             "candidates (null: one population)")
         n_startup = self.population if n_startup is None else int(n_startup)
-        if n_startup < 1 or not bound > 0:
-            raise ValueError(f"n_startup must be >= 1 and bound > 0, got {n_startup}, {bound}")
+        if n_startup < 1 or not 0 < bound < math.inf:
+            raise ValueError(f"optimizer.n_startup must be >= 1 and optimizer.bound a finite number > 0 (the box's "
+                             f"half side, in sigma), got {n_startup}, {bound}")
         if self.population * int(iterations) <= n_startup:
             raise ValueError(f"budget.population x budget.iterations = {self.population} x {iterations} = "
                              f"{self.population * int(iterations)} candidates, not more than its initial design of "

@@ -47,7 +47,7 @@ from grt.rl.train import (
 from grt.rl.vec_env import Shape, TaskVecEnv
 from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
 from grt.targets import build
-from grt.tasks import TaskInputError, preflight, session_class, task_object
+from grt.tasks import TaskInputError, check_fit, preflight, session_class, task_object
 
 log = logging.getLogger("grt.train")
 
@@ -62,6 +62,7 @@ def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
     """
     check_export(plain(cfg.train))
     check_trainable(plain(cfg.task))
+    check_fit(plain(cfg.task))  # no Vulkan: before the object and the workers
     done = finished(out_dir, int(cfg.train.iterations)) if cfg.get("resume") else None
     if done is not None:  # a finished training: said, and not a file of it changes
         return {**done, "nothing_to_train": f"nothing to train: {out_dir} already trained {done['iterations']} "

@@ -133,6 +133,23 @@ def _choice(group: str) -> str | None:
     return None
 
 
+def check_fit(task: dict, policy=None) -> None:
+    """What needs no object, checked first (before the object is prepared, which takes seconds to minutes): that
+    the machine has the Vulkan device the task's simulator needs (:func:`grt.tasks.renderer.check_renderer`) and
+    that the policy's kind fits the task (its class only, nothing built; :func:`preflight` checks the rest).
+
+    Raises:
+        RendererError: no Vulkan device. PolicyKindError: a policy of a kind the task cannot run.
+    """
+    from grt.tasks.renderer import check_renderer
+
+    check_renderer(task)
+    if isinstance(policy, Mapping) and "_target_" in policy:
+        target = locate(str(policy["_target_"]), "policy")  # a class Python cannot find: one line
+        if isinstance(target, type):
+            check_policy_kind(task, target, _choice("policy"))
+
+
 def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:
     """Refuse, before any simulation, an object the task cannot use or a policy made for another task.
 

@@ -267,11 +267,11 @@ def test_a_mesh_in_the_actor_frame_is_refused_with_the_shift():
 
 
 @pytest.mark.parametrize(("session", "words"), [
-    (dict(actor="cubeC"), ["task.actor=cubeC matches no actor of StackCube-v1", "its actors: table-workspace, ground, cubeA, cubeB"]),
+    (dict(actor="cubeC"), ["task.session.actor=cubeC matches no actor of StackCube-v1", "its actors: table-workspace, ground, cubeA, cubeB"]),
     (dict(actor="cube.*"), ["matches 2 actors of StackCube-v1 (cubeA, cubeB)", "name one of them exactly"]),
     (dict(actor="panda_hand"), ["a link of the articulation", "not supported yet"]),
     (dict(env_id="StackCub-v1"), ["task.env_id=StackCub-v1 is not a registered", "StackCube-v1"]),
-    (dict(env_module="no_such_module_xyz"), ["task.env_module=no_such_module_xyz cannot be imported"]),
+    (dict(env_module="no_such_module_xyz"), ["task.session.env_module=no_such_module_xyz cannot be imported"]),
 ])
 def test_bad_tasks_are_refused_in_one_line(session, words):
     with pytest.raises(TaskInputError) as err:

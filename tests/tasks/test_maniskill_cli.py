@@ -37,10 +37,10 @@ def _refusal(proc: subprocess.CompletedProcess) -> str:
     # a failure flag (or score key) the env's info lacks: once a sim_error of every trial, with the typo saved
     # in the run's config, so resume= could not fix it
     (["task=pick_cube", "policy=pick_cube_expert", "task.session.failure_flags=[is_grasped,is_obj_place]"],
-     ["task.failure_flags: 'is_obj_place' is not a key of PickCube-v1's info", "did you mean is_obj_placed?"]),
+     ["task.session.failure_flags: 'is_obj_place' is not a key of PickCube-v1's info", "did you mean is_obj_placed?"]),
     (["task=push_cube", "task.session.max_steps=0"], ["task.session.max_steps=0: give an integer >= 1"]),  # was: the
     # env's default, without a word; a regex that catches the ground first names it (was: "the actor has no ...")
-    (["task=push_cube", "task.session.actor=.*"], ["task.actor=.* matched the actor 'ground'", "name that one exactly"]),
+    (["task=push_cube", "task.session.actor=.*"], ["task.session.actor=.* matched the actor 'ground'", "name that one exactly"]),
 ])
 def test_bad_maniskill_input_is_one_line_and_leaves_no_run_folder(tmp_path, args, words):
     out = tmp_path / "run"

@@ -59,6 +59,7 @@ from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TrialOu
 from grt.tasks.batched import BatchedEpisodes, Objects
 from grt.tasks.maniskill.driver import StepLimit, StepRecorder
 from grt.tasks.maniskill.geometry import ActorFrame, check_grt_frame
+from grt.tasks.maniskill.make import make_env
 from grt.tasks.maniskill.swap import ActorSwap, Candidate
 
 log = logging.getLogger(__name__)
@@ -71,6 +72,9 @@ def failure_modes(flags) -> list[tuple[str, str]]:
     a mapping gives them."""
     if isinstance(flags, Mapping):
         return [(str(k), str(v)) for k, v in flags.items()]
+    if isinstance(flags, str):  # one flag's characters would be read as flags
+        raise TaskInputError(f"task.session.failure_flags={flags}: give a list of the env's info flags "
+                             f"(task.session.failure_flags=[{flags}]) or a mapping flag: mode")
     out = []
     for flag in flags or []:
         name = re.sub(r"^(is_|has_)", "", str(flag))
@@ -80,7 +84,7 @@ def failure_modes(flags) -> list[tuple[str, str]]:
 
 
 def import_env_module(module: str | None) -> None:
-    """Import the module that registers a user's env (``task.env_module``), in this process.
+    """Import the module that registers a user's env (``task.session.env_module``), in this process.
 
     Raises:
         TaskInputError: the module cannot be imported (names it and the error).
@@ -89,9 +93,12 @@ def import_env_module(module: str | None) -> None:
         return
     try:
         importlib.import_module(str(module))
+    except SystemExit as err:  # a module that exits on import would end the command without a word
+        raise TaskInputError(f"task.session.env_module={module} called sys.exit({err.code!r}) while being imported; "
+                             "it must be a module that registers the env when imported, without exiting") from None
     except Exception as err:  # noqa: BLE001 - any import failure is the same user problem
-        raise TaskInputError(f"task.env_module={module} cannot be imported ({type(err).__name__}: {err}); it must be "
-                             "an importable module (on PYTHONPATH or installed) that registers the env") from None
+        raise TaskInputError(f"task.session.env_module={module} cannot be imported ({type(err).__name__}: {err}); it "
+                             "must be an importable module (on PYTHONPATH or installed) that registers the env") from None
 
 
 def check_env_id(env_id: str) -> None:
@@ -109,7 +116,7 @@ def check_env_id(env_id: str) -> None:
     close = difflib.get_close_matches(env_id, list(REGISTERED_ENVS), n=5, cutoff=0.5)
     hint = f"close names: {', '.join(close)}" if close else f"{len(REGISTERED_ENVS)} are registered"
     raise TaskInputError(f"task.env_id={env_id} is not a registered ManiSkill env ({hint}); a user's own env: name "
-                         "the module that registers it in task.env_module")
+                         "the module that registers it in task.session.env_module")
 
 
 def _resolve(path: str | None):
@@ -117,10 +124,14 @@ def _resolve(path: str | None):
         return None
     module, _, name = str(path).rpartition(".")
     try:
-        return getattr(importlib.import_module(module), name)
+        found = getattr(importlib.import_module(module), name)
     except Exception as err:  # noqa: BLE001
-        raise TaskInputError(f"task.refresh={path} cannot be imported ({type(err).__name__}: {err}); give a "
+        raise TaskInputError(f"task.session.refresh={path} cannot be imported ({type(err).__name__}: {err}); give a "
                              "function module.name(env, swap) -> {attribute: value}, or null") from None
+    if not callable(found):
+        raise TaskInputError(f"task.session.refresh={path} is not a function (it is {found!r}); give a "
+                             "function module.name(env, swap) -> {attribute: value}, or null")
+    return found
 
 
 class ManiSkillSession(BatchedEpisodes, EpisodeSession):
@@ -154,7 +165,6 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
                  env_module: str | None = None, max_steps: int | None = None, rebuild_each_trial: bool = False,
                  driver_step_limit: int | None = None, num_envs: int = 1, sim_backend: str = "physx_cpu",
                  render_backend: str = "cpu", sim_config: dict | None = None):
-        import gymnasium as gym
 
         import_env_module(env_module)
         import mani_skill.envs  # noqa: F401 - registers the stock envs
@@ -169,7 +179,7 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
         try:
             re.compile(self.actor)
         except re.error as err:
-            raise TaskInputError(f"task.actor={actor!r} is no valid regex ({err}); give the actor's name") from None
+            raise TaskInputError(f"task.session.actor={actor!r} is no valid regex ({err}); give the actor's name") from None
         self.score_key, self.score_unit = str(score), str(score_unit or "")
         self.flags = failure_modes(failure_flags)
         self.failure_modes = (*COMMON_MODES, *(m for _, m in self.flags), "timeout")
@@ -182,7 +192,7 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
         if max_steps:
             kwargs["max_episode_steps"] = int(max_steps)
         with self.swap.active():
-            self.env = gym.make(self.env_id, **kwargs)
+            self.env = make_env(self.env_id, kwargs)  # a mistyped mode or robot: one line
         self.unwrapped = self.env.unwrapped
         try:
             self._check_actor()
@@ -214,8 +224,8 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
             info = self.unwrapped.get_info()
         except Exception:  # noqa: BLE001 - an env that cannot evaluate before its first step: judged per trial
             return
-        for key, where in [*((f, "task.failure_flags") for f, _ in self.flags),
-                           *(() if self.score_key == "success" else ((self.score_key, "task.score"),))]:
+        for key, where in [*((f, "task.session.failure_flags") for f, _ in self.flags),
+                           *(() if self.score_key == "success" else ((self.score_key, "task.session.score"),))]:
             if key not in info:
                 self.env.close()
                 close = difflib.get_close_matches(key, list(info), n=1)
@@ -232,7 +242,7 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
                 per_scene.setdefault(i, []).append(b.name)
         several = next((names for names in per_scene.values() if len(names) > 1), None)
         if several:
-            raise TaskInputError(f"task.actor={self.actor} matches {len(several)} actors of {self.env_id} "
+            raise TaskInputError(f"task.session.actor={self.actor} matches {len(several)} actors of {self.env_id} "
                                  f"({', '.join(several)}): name one of them exactly")
         if builds:
             return
@@ -240,10 +250,10 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
             links = [link.name for link in art.get_links()]
             hit = [n for n in [art_name, *links] if re.fullmatch(self.actor, n)]
             if hit:
-                raise TaskInputError(f"task.actor={self.actor} is {'the articulation' if hit[0] == art_name else 'a link of the articulation'} "
+                raise TaskInputError(f"task.session.actor={self.actor} is {'the articulation' if hit[0] == art_name else 'a link of the articulation'} "
                                      f"{art_name!r} of {self.env_id}: articulation links are not supported yet; swap one "
                                      f"of its actors: {', '.join(self.swap.names)}")
-        raise TaskInputError(f"task.actor={self.actor} matches no actor of {self.env_id}; its actors: "
+        raise TaskInputError(f"task.session.actor={self.actor} matches no actor of {self.env_id}; its actors: "
                              f"{', '.join(self.swap.names)}")
 
     @classmethod
@@ -368,7 +378,7 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
         out = {}
         for key in dict.fromkeys(keys):
             if key not in info:
-                raise KeyError(f"the env's info has no {key!r} (task.failure_flags / task.score); it has "
+                raise KeyError(f"the env's info has no {key!r} (task.session.failure_flags / task.session.score); it has "
                                f"{', '.join(sorted(info))}")
             out[key] = np.asarray(_numpy(info[key])).reshape(self.unwrapped.num_envs, -1)[:, 0]
         return out

@@ -105,6 +105,41 @@ class Build:
     swapped: bool = False
 
 
+class RefreshError(RuntimeError):
+    """A refresh function that returned something the env cannot use (a trial's ``sim_error``, naming it)."""
+
+
+def refreshed(refresh: Callable, env, swap) -> dict:
+    """``refresh(env, swap)``, checked: a mapping of the env's attribute names to finite numbers or arrays.
+
+    Raises:
+        RefreshError: names the function, what it returned and what it must return.
+    """
+    name = f"task.session.refresh={getattr(refresh, '__module__', '?')}.{getattr(refresh, '__qualname__', refresh)}"
+    out = refresh(env, swap)
+    if not isinstance(out, dict):
+        raise RefreshError(f"{name} returned a {type(out).__name__}; it must return a dict {{attribute: value}} of "
+                           "the env's attributes its success check reads")
+    for attr, value in out.items():
+        if not isinstance(attr, str) or not hasattr(env, attr):
+            raise RefreshError(f"{name} returned the key {attr!r}, which is no attribute of {type(env).__name__}; "
+                               "its keys must be attributes the env's success check reads")
+        array = _numbers(value)
+        if array is not None and not np.all(np.isfinite(array)):
+            raise RefreshError(f"{name} returned {attr}={array.tolist()} (not finite): every trial's success check "
+                               "would read it; return finite sizes computed from swap's hulls")
+    return out
+
+
+def _numbers(value) -> np.ndarray | None:
+    """A refreshed value's numbers (a number, array, tensor or ManiSkill ``Pose``), ``None`` for anything else."""
+    value = getattr(value, "raw_pose", value)  # a Pose: its (n, 7) position and quaternion
+    try:
+        return np.asarray(value.detach().cpu() if hasattr(value, "detach") else value, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+
+
 class ActorSwap:
     """Builds one named actor of an env from a candidate mesh; see the module docstring.
 
@@ -165,7 +200,7 @@ class ActorSwap:
         try:
             stock = records_mesh(records)
         except ActorGeometryError as err:  # a regex (".*") that caught the ground or a marker: name the catch
-            raise ActorGeometryError(f"task.actor={self.pattern.pattern} matched the actor {name!r}: {err}; if it is "
+            raise ActorGeometryError(f"task.session.actor={self.pattern.pattern} matched the actor {name!r}: {err}; if it is "
                                      "not the actor to deform, name that one exactly") from None
         if self.reference is None:
             self.reference = stock
@@ -300,7 +335,7 @@ class ActorSwap:
         """Set the attributes the env's success check reads from the candidate (see :meth:`restore`)."""
         if self.refresh is None or not self.swapped or self.env is None:
             return
-        for attr, value in self.refresh(self.env, self).items():
+        for attr, value in refreshed(self.refresh, self.env, self).items():
             if attr not in self._saved:
                 self._saved[attr] = getattr(self.env, attr)
             setattr(self.env, attr, value)

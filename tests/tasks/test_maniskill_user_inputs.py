@@ -1,0 +1,95 @@
+"""A ManiSkill task's settings mistyped or a user's module that misbehaves: one ``error:`` line (exit code 2)
+naming the setting (``task.session.KEY``) and the fix, never a ManiSkill traceback or a silent wrong score."""
+
+from __future__ import annotations
+
+import math
+import sys
+import textwrap
+
+import pytest
+
+from tests.cli._apps import app, error_line
+
+USER_MODULE = '''
+import sys
+
+NOT_A_FUNCTION = 3
+
+
+def as_list(env, swap):
+    return [("cube_half_size", 0.02)]
+
+
+def nan(env, swap):
+    return {"cube_half_size": env.cube_half_size * float("nan")}
+'''
+
+
+@pytest.fixture
+def user_pkg(tmp_path, monkeypatch):
+    """``userpkg.refreshes`` (refresh functions that misbehave) and ``userpkg.exits`` (``sys.exit(3)`` on import),
+    importable here and in the workers."""
+    pkg = tmp_path / "pkg" / "userpkg"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "refreshes.py").write_text(textwrap.dedent(USER_MODULE))
+    (pkg / "exits.py").write_text("import sys\nsys.exit(3)\n")
+    monkeypatch.syspath_prepend(str(pkg.parent))
+    monkeypatch.setenv("PYTHONPATH", f"{pkg.parent}:{':'.join(sys.path)}")
+    yield pkg
+    for name in [m for m in sys.modules if m.startswith("userpkg")]:
+        del sys.modules[name]
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize(("override", "words"), [
+    ("task.session.obs_mode=statee", ["task.session.obs_mode=statee is not a ManiSkill observation mode",
+                                      "did you mean state or state_dict?"]),
+    ("task.session.control_mode=pd_ee_delta_poss", ["task.session.control_mode=pd_ee_delta_poss is not a control mode "
+                                                    "of PushCube-v1's robot (did you mean pd_ee_delta_pos", "its modes: "]),
+    ("+task.session.env_kwargs.robot_uids=panda_typo", ["robot_uids=panda_typo is not a registered ManiSkill robot",
+                                                        "panda"]),
+    ("task.session.failure_flags=is_grasped", ["task.session.failure_flags=is_grasped: give a list",
+                                               "task.session.failure_flags=[is_grasped]"]),
+    ("task.session.env_module=userpkg.exits", ["task.session.env_module=userpkg.exits called sys.exit(3) while being "
+                                               "imported"]),
+    ("task.session.refresh=userpkg.refreshes.NOT_A_FUNCTION", ["task.session.refresh=userpkg.refreshes.NOT_A_FUNCTION "
+                                                               "is not a function (it is 3)"]),
+])
+def test_a_mistyped_maniskill_setting_is_one_line_naming_it(user_pkg, tmp_path, capsys, override, words):
+    out = tmp_path / "out"
+    code, _, err = app("evaluate", "task=push_cube", "policy=push_cube_expert", "budget.trials=1", override,
+                       f"hydra.run.dir={out}", capsys=capsys)
+    line = error_line(err)
+    assert code == 2 and all(w in line for w in words), line
+    assert not out.exists()
+
+
+def test_a_refresh_must_return_finite_values_of_the_envs_attributes():
+    from grt.tasks.maniskill.swap import RefreshError, refreshed
+
+    class Env:
+        cube_half_size = 0.02
+
+    def as_list(env, swap):
+        return [("cube_half_size", 0.02)]
+
+    with pytest.raises(RefreshError, match=r"as_list returned a list; it must return a dict \{attribute: value\}"):
+        refreshed(as_list, Env(), None)
+    with pytest.raises(RefreshError, match=r"returned cube_half_size=nan \(not finite\)"):
+        refreshed(lambda env, swap: {"cube_half_size": math.nan}, Env(), None)
+    with pytest.raises(RefreshError, match=r"the key 'cube_size', which is no attribute of Env"):
+        refreshed(lambda env, swap: {"cube_size": 0.02}, Env(), None)
+    assert refreshed(lambda env, swap: {"cube_half_size": 0.03}, Env(), None) == {"cube_half_size": 0.03}
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_a_refresh_returning_nan_stops_the_evaluation_naming_it(user_pkg, tmp_path, capsys):
+    """Every trial was a ``timeout`` and ``grt.evaluate`` printed 0.000 with exit code 0."""
+    code, _, err = app("evaluate", "task=push_cube", "policy=push_cube_expert", "budget.trials=1", "budget.workers=1",
+                       "task.session.refresh=userpkg.refreshes.nan", f"hydra.run.dir={tmp_path / 'out'}", capsys=capsys)
+    line = error_line(err.split("\n", 1)[1])  # after the progress bar's line
+    assert code == 2 and "ended in sim_error" in line and "RefreshError: task.session.refresh=userpkg.refreshes.nan " \
+                                                           "returned cube_half_size=nan (not finite)" in line, line
