@@ -136,21 +136,31 @@ def check_resolves(cfg: DictConfig) -> None:
     Raises:
         SettingError: names the key, what it reads, and the key to add.
     """
-    from omegaconf.errors import InterpolationResolutionError
+    from omegaconf.errors import InterpolationKeyError, InterpolationResolutionError
 
-    try:
-        OmegaConf.to_container(cfg, resolve=True)
-    except InterpolationResolutionError as exc:
-        key = str(getattr(exc, "full_key", "") or "")
-        parent, _, name = key.rpartition(".")
-        node = OmegaConf.select(cfg, parent) if parent else cfg
-        raw = node._get_node(name)._value() if isinstance(node, DictConfig) and name in node else None
-        reads = f" ({key}: {raw})" if raw is not None else ""
-        missing = _absolute(key, str(raw)) if isinstance(raw, str) else None
-        fix = (f"add {missing.rpartition('.')[2]}: to the {missing.partition('.')[0]} config (or give "
-               f"{missing}=VALUE)" if missing else "give the key it reads")
-        raise SettingError(f"{key} reads a setting the config does not have{reads}: "
-                           f"{str(exc).splitlines()[0]}; {fix}") from None
+    for section in cfg:
+        node = cfg._get_node(section)
+        if not OmegaConf.is_config(node):
+            continue
+        try:
+            OmegaConf.to_container(node, resolve=True)
+        except InterpolationKeyError as exc:
+            raise _missing(cfg, exc) from None
+        except InterpolationResolutionError:  # a resolver that needs Hydra's app (${hydra:...}): not this check's
+            continue
+
+
+def _missing(cfg: DictConfig, exc: Exception) -> SettingError:
+    """The error for the interpolation of ``exc`` that reads a key ``cfg`` does not have."""
+    key = str(getattr(exc, "full_key", "") or "")
+    parent, _, name = key.rpartition(".")
+    node = OmegaConf.select(cfg, parent) if parent else cfg
+    raw = node._get_node(name)._value() if isinstance(node, DictConfig) and name in node else None
+    reads = f" ({key}: {raw})" if raw is not None else ""
+    missing = _absolute(key, str(raw)) if isinstance(raw, str) else None
+    fix = (f"add {missing.rpartition('.')[2]}: to the {missing.partition('.')[0]} config (or give "
+           f"{missing}=VALUE)" if missing else "give the key it reads")
+    return SettingError(f"{key} reads a setting the config does not have{reads}: {str(exc).splitlines()[0]}; {fix}")
 
 
 def _absolute(key: str, interpolation: str) -> str | None:
