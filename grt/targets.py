@@ -89,6 +89,18 @@ def check_target(key: str, node, arguments: bool = True) -> None:
                 raise ClassError(f"{describe(key, target)} takes no argument {name!r} (it takes: {takes}){hint}")
 
 
+def takes(target: str, name: str) -> bool:
+    """Whether the class (or function) ``target`` takes a keyword argument ``name`` (``False`` when it cannot be
+    imported or its signature read)."""
+    params = _source_parameters(target)
+    if params is _UNREAD:
+        try:
+            params = _parameters(locate(target))
+        except ClassError:
+            return False
+    return params is not None and name in params
+
+
 def locate(target: str, key: str = "_target_") -> object:
     """The object a dotted path names (``mypkg.policies.MyPolicy``), imported.
 

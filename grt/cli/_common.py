@@ -49,6 +49,7 @@ from grt.runfolder import (  # also registers the resume_or resolver of hydra.ru
     discard_new,
     resume_overrides,
 )
+from grt.targets import takes
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
 _NOISE = ("full_key:", "object_type=", "reference_type=", "See https://hydra.cc", "Config search path:")
@@ -304,6 +305,10 @@ def unknown_key(full_key: str, parent) -> str | None:
     if not full_key or not keys:
         return None
     section, _, name = full_key.rpartition(".")
+    target = parent.get("_target_") if isinstance(parent, DictConfig) else None
+    if target is not None and takes(str(target), name):  # an argument of the class its YAML leaves out
+        return (f"{full_key} is an argument of {target} that the config does not set; add it with '+': "
+                f"+{full_key}=VALUE")
     close = difflib.get_close_matches(name, keys, n=3, cutoff=0.6)
     text = f"{full_key} is not a setting of {section or 'the command'} (its keys are {', '.join(sorted(keys))})"
     if close:

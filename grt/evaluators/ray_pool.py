@@ -35,7 +35,7 @@ import sys
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from grt.errors import UserError
@@ -214,6 +214,15 @@ class RayPool:
         if num_cpus == 0 and not num_gpus and not resources:
             raise ClusterError("evaluator.num_cpus=0 with no num_gpus or resources would start unbounded actors; "
                                "give each actor num_cpus=1 (one simulator uses one core)")
+        for key, value in (("runtime_env", runtime_env), ("resources", resources)):
+            if value is not None and not isinstance(value, Mapping):
+                raise ClusterError(f"evaluator.{key}={value!r}: give a mapping ("
+                                   + ("Ray's runtime environment: evaluator.runtime_env={working_dir: ., env_vars: "
+                                      "{NAME: VALUE}}" if key == "runtime_env" else "evaluator.resources={NAME: AMOUNT}")
+                                   + "), or null")
+        if runtime_env is not None and not isinstance(runtime_env.get("env_vars") or {}, Mapping):
+            raise ClusterError(f"evaluator.runtime_env.env_vars={runtime_env['env_vars']!r}: give a mapping "
+                               "{NAME: VALUE}")
         self.task, self.policy = task, policy
         self.address, self.max_retries = str(address), int(max_retries)
         self.trial_timeout, self.startup_timeout = trial_timeout, startup_timeout

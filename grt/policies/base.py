@@ -116,10 +116,18 @@ class PolicyOutputError(RuntimeError):
 
 
 def policy_name(policy) -> str:
-    """``module.Class`` of a policy (and what a served one calls itself), for messages."""
-    cls = type(policy)
+    """``module.Class`` of a policy (and what a served one calls itself), for messages; a wrapper of a predictor
+    (:class:`PointCloudGraspPolicy`) is named by the predictor, whose output it passes on."""
+    inner = getattr(policy, "predictor", None)
+    if inner is not None and getattr(type(policy), "plan", None) is PointCloudGraspPolicy.plan:  # passed on as is
+        return f"{_qualified(inner)} (through {_qualified(policy)})"
     name = getattr(policy, "name", None)
-    return f"{cls.__module__}.{cls.__qualname__}" + (f" ({name})" if isinstance(name, str) and name else "")
+    return _qualified(policy) + (f" ({name})" if isinstance(name, str) and name else "")
+
+
+def _qualified(obj) -> str:
+    cls = type(obj)
+    return f"{cls.__module__}.{cls.__qualname__}"
 
 
 def check_actions(actions, shape: tuple[int, ...], policy) -> np.ndarray:

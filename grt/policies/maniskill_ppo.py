@@ -20,7 +20,9 @@ checkpoint was trained with; the observation and action sizes are checked agains
 
 from __future__ import annotations
 
+import pickle
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -45,11 +47,19 @@ def read_agent(path: str | Path) -> dict[str, torch.Tensor]:
         ManiSkillCheckpointError: missing or unreadable file, or no ``actor_mean`` MLP inside.
     """
     path = Path(path).expanduser()
+    if path.is_dir():
+        inside = ", ".join(p.name for p in sorted(path.glob("*.pt"))[:3]) or "no .pt file"
+        raise ManiSkillCheckpointError(f"policy.checkpoint={path} is a folder ({inside} in it): give the .pt file "
+                                       "ManiSkill's ppo.py saved (runs/<run>/final_ckpt.pt or ckpt_<N>.pt)")
     if not path.is_file():
         raise ManiSkillCheckpointError(f"policy.checkpoint={path} does not exist: give the .pt file ManiSkill's "
                                        "ppo.py saved (runs/<run>/final_ckpt.pt or ckpt_<N>.pt)")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # a plain pickle: torch warns of its protocol before refusing it
+            warnings.simplefilter("ignore")
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        raise ManiSkillCheckpointError(_unreadable(path, str(err))) from None
     except Exception as err:
         raise ManiSkillCheckpointError(f"policy.checkpoint={path} cannot be read as a torch state dict "
                                        f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from err
@@ -58,6 +68,21 @@ def read_agent(path: str | Path) -> dict[str, torch.Tensor]:
             "grt" in state else "no actor_mean.<i>.weight inside"
         raise ManiSkillCheckpointError(f"policy.checkpoint={path} is not a ManiSkill PPO Agent state dict ({what})")
     return state
+
+
+def _unreadable(path: Path, message: str) -> str:
+    """Why ``torch.load(path, weights_only=True)`` refused a file, without PyTorch's advice to load it with
+    ``weights_only=False`` (which would run whatever code the file holds)."""
+    found = re.search(r"Unsupported global: GLOBAL (\S+)", message)
+    if found:
+        return (f"policy.checkpoint={path} holds pickled Python code or objects ({found.group(1)}), not only "
+                "tensors: GRT reads a ManiSkill checkpoint as tensors only, so no code in a file runs; save the "
+                "agent's tensors (torch.save(agent.state_dict(), PATH), as ppo.py does)")
+    head = path.read_bytes()[:2]
+    if head[:1] == b"\x80" and head != b"PK":
+        return (f"policy.checkpoint={path} is a plain pickle, not a torch checkpoint (torch.save writes a zip "
+                "archive of tensors): save the agent's state_dict with torch.save(agent.state_dict(), PATH)")
+    return f"policy.checkpoint={path} cannot be read as a torch state dict (not a torch file, or a damaged one)"
 
 
 def build_actor(state: dict[str, torch.Tensor], activation: str = "tanh") -> nn.Sequential:
@@ -80,6 +105,7 @@ def build_actor(state: dict[str, torch.Tensor], activation: str = "tanh") -> nn.
     modules: list[nn.Module] = []
     for n, i in enumerate(order):
         weight, bias = layers[i]["weight"], layers[i]["bias"]
+        _check_layer(i, weight, bias)
         if modules and weight.shape[1] != modules[-2].out_features:
             raise ManiSkillCheckpointError(f"actor_mean.{i}.weight is {tuple(weight.shape)}: it does not take the "
                                            f"previous layer's {modules[-2].out_features} outputs")
@@ -89,6 +115,22 @@ def build_actor(state: dict[str, torch.Tensor], activation: str = "tanh") -> nn.
         if n < len(order) - 1:
             modules.append(ACTIVATIONS[activation]())
     return nn.Sequential(*modules)
+
+
+def _check_layer(i: int, weight, bias) -> None:
+    """A Linear layer's tensors: a 2-D floating weight ``(out, in)`` and a 1-D floating bias ``(out,)``.
+
+    Raises:
+        ManiSkillCheckpointError: names the tensor, its shape and type, and what ppo.py's layer holds.
+    """
+    for name, value, dims in (("weight", weight, 2), ("bias", bias, 1)):
+        if not (isinstance(value, torch.Tensor) and value.is_floating_point() and value.dim() == dims):
+            what = f"{value.dtype} {tuple(value.shape)}" if isinstance(value, torch.Tensor) else type(value).__name__
+            raise ManiSkillCheckpointError(f"actor_mean.{i}.{name} is {what}: a Linear layer's {name} is a "
+                                           f"{dims}-D floating-point tensor ({'(outputs, inputs)' if dims == 2 else '(outputs,)'})")
+    if bias.shape[0] != weight.shape[0]:
+        raise ManiSkillCheckpointError(f"actor_mean.{i}.bias has {bias.shape[0]} values, its weight "
+                                       f"{tuple(weight.shape)} {weight.shape[0]} outputs: they must agree")
 
 
 class ManiSkillPPOPolicy(BatchedPolicy):

@@ -35,6 +35,10 @@ def load_checkpoint(path: str | Path) -> dict:
         CheckpointError: missing or unreadable file, or no ``grt`` config inside.
     """
     path = Path(path).expanduser()
+    if path.is_dir():
+        inside = ", ".join(p.name for p in sorted(path.glob("*.pt"))[:3]) or "no .pt file"
+        raise CheckpointError(f"policy checkpoint {path} is a folder ({inside} in it): give the .pt file "
+                              "(a training's policy.pt)")
     if not path.is_file():
         raise CheckpointError(f"policy checkpoint {path} does not exist: train one with "
                               "`python -m grt.train ...` or point policy.checkpoint at a .pt file")

@@ -91,3 +91,36 @@ def test_a_policy_of_another_kind_is_refused_before_the_object_is_prepared(tmp_p
                          capsys=capsys)
     assert code == 2 and "policy=contact_graspnet (ContactGraspNetPolicy) is a grasp planner" in error_line(err)
     assert "fidelity" not in out  # the mesh's preparation prints its fidelity figures: not reached
+
+
+@pytest.mark.parametrize(("override", "words"), [
+    ("evaluator.runtime_env=garbage", "evaluator.runtime_env='garbage': give a mapping (Ray's runtime environment"),
+    ("evaluator.runtime_env={env_vars: x}", "evaluator.runtime_env.env_vars='x': give a mapping"),
+])
+def test_a_ray_runtime_env_that_is_no_mapping_is_one_line(tmp_path, capsys, override, words):
+    """Was ``building it raised ValueError: dictionary update sequence element #0 has length 1``."""
+    from tests.runner._toy_run import TOY
+
+    code, _, err = app("evaluate", "evaluator=ray", override, "object=can", "budget.trials=1", TOY[0],
+                       f"hydra.run.dir={tmp_path / 'out'}", capsys=capsys)
+    assert code == 2 and words in error_line(err), err
+
+
+def test_an_argument_the_users_yaml_leaves_out_is_given_with_a_plus(tmp_path, capsys, monkeypatch):
+    """``policy.predictor.noise=0.1`` (an argument of the user's class its YAML does not set) was "not a setting of
+    policy.predictor (its keys are depth, jitter)", with no word of '+'."""
+    (tmp_path / "pkg" / "mypred").mkdir(parents=True)
+    (tmp_path / "pkg" / "mypred" / "__init__.py").write_text(
+        "class Predictor:\n    def __init__(self, depth=1, jitter=0.0, noise=0.0):\n        pass\n\n\n"
+        "class Wrapper:\n    def __init__(self, predictor=None):\n        pass\n")
+    (tmp_path / "conf" / "policy").mkdir(parents=True)
+    (tmp_path / "conf" / "policy" / "mine.yaml").write_text(
+        "_target_: mypred.Wrapper\npredictor:\n  _target_: mypred.Predictor\n  depth: 2\n  jitter: 0.1\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "pkg"))
+    code, _, err = app("evaluate", "--config-dir", str(tmp_path / "conf"), "policy=mine", "policy.predictor.noise=0.1",
+                       capsys=capsys)
+    assert code == 2 and error_line(err) == ("error: policy.predictor.noise is an argument of mypred.Predictor that "
+                                             "the config does not set; add it with '+': +policy.predictor.noise=VALUE")
+    code, _, err = app("evaluate", "--config-dir", str(tmp_path / "conf"), "policy=mine", "policy.predictor.nois=0.1",
+                       capsys=capsys)
+    assert code == 2 and "policy.predictor.nois is not a setting of policy.predictor" in error_line(err)

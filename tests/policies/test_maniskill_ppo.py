@@ -68,3 +68,44 @@ def test_files_that_are_not_ppo_py_agents_are_refused(tmp_path):
     torch.save(state, tmp_path / "bad.pt")
     with pytest.raises(ManiSkillCheckpointError, match="does not take the previous layer's 16 outputs"):
         ManiSkillPPOPolicy(str(tmp_path / "bad.pt"))
+
+
+class _Code:
+    """Pickled code inside a checkpoint: never run by GRT."""
+
+
+def _bad_checkpoints(tmp_path) -> dict[str, tuple[str, str]]:
+    """Files a user may give as ``policy.checkpoint``, each with the words of its refusal."""
+    import pickle
+
+    out = {}
+    (tmp_path / "run").mkdir()
+    torch.save(agent_state(obs=35, act=8)[0], tmp_path / "run" / "final_ckpt.pt")
+    out["folder"] = (str(tmp_path / "run"), "is a folder (final_ckpt.pt in it): give the .pt file")
+    state = agent_state(obs=35, act=8)[0]
+    torch.save({**state, "extra": _Code()}, tmp_path / "code.pt")
+    out["code"] = (str(tmp_path / "code.pt"), "holds pickled Python code or objects (")
+    (tmp_path / "plain.pkl").write_bytes(pickle.dumps({"actor_mean.0.weight": [[0.0]]}))
+    out["pickle"] = (str(tmp_path / "plain.pkl"), "is a plain pickle, not a torch checkpoint")
+    for name, key, value, words in (("int", "actor_mean.0.weight", torch.zeros(256, 35, dtype=torch.int64),
+                                     "actor_mean.0.weight is torch.int64 (256, 35): a Linear layer's weight is a 2-D"),
+                                    ("flat", "actor_mean.0.weight", torch.zeros(256 * 35),
+                                     "actor_mean.0.weight is torch.float32 (8960,)"),
+                                    ("bias", "actor_mean.0.bias", torch.zeros(7),
+                                     "actor_mean.0.bias has 7 values, its weight (256, 35) 256 outputs")):
+        torch.save({**state, key: value}, tmp_path / f"{name}.pt")
+        out[name] = (str(tmp_path / f"{name}.pt"), words)
+    return out
+
+
+@pytest.mark.sim
+def test_a_checkpoint_that_is_no_ppo_agent_is_one_line_through_the_command(tmp_path, capsys):
+    """A folder was "does not exist", pickled code relayed PyTorch's advice to set weights_only=False, a weight
+    of the wrong type or shape was cut to "Error(s) in loading state_dict for Linear:"."""
+    from tests.cli._apps import app, error_line
+
+    for name, (path, words) in _bad_checkpoints(tmp_path).items():
+        code, _, err = app("evaluate", "task=push_cube", "policy=maniskill_ppo", f"policy.checkpoint={path}",
+                           "budget.trials=1", f"hydra.run.dir={tmp_path / 'out'}", capsys=capsys)
+        line = error_line(err)
+        assert code == 2 and words in line and "weights_only" not in line, (name, line)

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from grt.policies.antipodal import AntipodalGraspPolicy
-from grt.policies.base import GraspStepPolicy
+from grt.policies.base import GraspStepPolicy, PointCloudGraspPolicy
 from grt.tasks import TASKS, TrialOutcome, get_task
 
 CONF = Path(__file__).parents[2] / "conf"
@@ -185,6 +185,15 @@ class _NaNPlanner(AntipodalGraspPolicy):
         return [Grasp(pose=np.full((4, 4), np.nan), width=0.03, score=1.0)]
 
 
+class _NaNPredictor:
+    """A user's point-cloud predictor (wrapped by GRT's PointCloudGraspPolicy) whose output diverged."""
+
+    def predict(self, points, normals, rng, table_z=0.0):
+        from grt.policies.base import Grasp
+
+        return [Grasp(pose=np.full((4, 4), np.nan), width=0.03, score=1.0)]
+
+
 class _BadStep(GraspStepPolicy):
     def __init__(self, action):
         self.action = action
@@ -196,7 +205,9 @@ class _BadStep(GraspStepPolicy):
 @pytest.mark.parametrize(("policy", "message"), [
     (_NaNPlanner(), "_NaNPlanner returned a non-finite grasp (grasp 0: pose [[nan"),
     (_BadStep(np.full(8, np.nan)), "_BadStep returned a non-finite action [nan"),
-    (_BadStep(np.zeros(7)), "_BadStep returned actions of shape (7,); the task takes (8,)")])
+    (_BadStep(np.zeros(7)), "_BadStep returned actions of shape (7,); the task takes (8,)"),
+    (PointCloudGraspPolicy(_NaNPredictor()), "_NaNPredictor (through grt.policies.base.PointCloudGraspPolicy) "
+                                             "returned a non-finite grasp")])
 def test_unusable_policy_output_is_a_sim_error_naming_the_policy_never_missed(session, policy, message):
     """Issue 40: a NaN grasp pose was scored as a physical ``missed``; a sim_error naming the policy now, for
     grasp planners and step-by-step grasp policies alike (closed-loop tasks: tests/policies/test_policy_output.py)."""
