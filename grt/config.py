@@ -20,6 +20,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from grt import motionplanning_dir
 from grt.errors import UserError
 from grt.geometry.prepare import MeshSettings
 from grt.plan import (  # noqa: F401 - the rules' vocabulary, re-exported for the apps' own settings
@@ -271,6 +272,7 @@ def register() -> None:
     add_resolver("object_folder", object_folder)
     # the installed package's folder (shipped checkpoints live under it), wherever GRT runs from
     add_resolver("grt_dir", lambda: str(Path(__file__).resolve().parent))
+    add_resolver("grt_motionplanning", motionplanning_dir)
 
 
 register()

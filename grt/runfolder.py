@@ -581,7 +581,7 @@ def own_config(cfg: DictConfig) -> DictConfig:
         if _on_gpu(saved_ev) != _on_gpu(evaluator):  # the GPU's physics is not the CPU's: one journal, one
             was, now = ("evaluator=gpu", "CPU workers") if _on_gpu(saved_ev) else ("CPU workers", "evaluator=gpu")
             raise ResumeError(f"resume={cfg.resume}: the run's trials were simulated with {was}, this command would "
-                              f"go on with {now}, whose physics differs (docs/gpu.md): resume it with "
+                              f"go on with {now}, whose physics differs: resume it with "
                               f"{'evaluator=gpu' if _on_gpu(saved_ev) else 'evaluator=sim or evaluator=ray'}")
         own.evaluator = evaluator
     own.resume = cfg.resume

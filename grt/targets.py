@@ -29,7 +29,7 @@ from grt.errors import UserError
 
 HYDRA_KEYS = ("_target_", "_partial_", "_args_", "_recursive_", "_convert_")
 HOW_TO_IMPORT = ("make it importable: install your package (pip install -e YOUR_PROJECT) or add the folder "
-                 "that holds it to PYTHONPATH (docs/your-own-code.md)")
+                 "that holds it to PYTHONPATH")
 
 
 class ClassError(UserError):

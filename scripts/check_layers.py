@@ -42,7 +42,7 @@ LAYERS: dict[str, int] = {
     "grt.rl": 9, "grt.blueteam": 9,
     "grt.bench": 10,
     "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11,
-    "grt.serve": 11, "grt.replay": 11, "grt.calibrate": 11,
+    "grt.serve": 11, "grt.replay": 11, "grt.calibrate": 11, "grt.setup": 11,
 }
 TOP = 11  # every ``__main__`` module (a ``python -m`` shim)
 

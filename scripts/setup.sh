@@ -3,8 +3,8 @@
 # Mesa's lavapipe Vulkan driver from bookworm-backports, which SAPIEN needs even for state-only envs.
 #
 #   scripts/setup.sh            # create/refresh .venv and the Vulkan driver
-#   GRT_TORCH="torch==2.13.0" scripts/setup.sh   # the default pin (CPU wheel on the reference machine)
-#   GRT_TORCH="torch" scripts/setup.sh           # e.g. GPU users: let pip pick a CUDA build
+#   GRT_TORCH="torch==2.13.0" scripts/setup.sh   # the default pin, the CPU build from PyTorch's CPU index
+#   GRT_TORCH="torch" scripts/setup.sh           # e.g. GPU users: let pip pick a CUDA build (default index)
 #   scripts/setup.sh --motionplanning            # also ManiSkill's motion planners (make motionplanning)
 #
 # Re-running is cheap: every step checks whether it is already done.
@@ -92,17 +92,35 @@ fi
 # its own implementation of the network (grt/policies/cgn_net.py), so it is installed without deps.
 CGN_SPEC="cgn-pytorch==0.4.3"
 HASH=$( (cat pyproject.toml; echo "$TORCH_SPEC $CGN_SPEC") | sha256sum | cut -c1-16)
+TORCH_CPU_INDEX=${GRT_TORCH_INDEX:-https://download.pytorch.org/whl/cpu}
+install_torch() {
+  # The default pin takes the CPU build from PyTorch's CPU index (the default index's Linux torch is the CUDA
+  # build, several GB); where that index cannot be reached, the default index's (which may be a CUDA build).
+  # GRT_TORCH set by the user (a CUDA torch): the default index, as asked.
+  if [ -z "${GRT_TORCH:-}" ] && "$VENV/bin/python" -c "import urllib.request, sys; urllib.request.urlopen(sys.argv[1] + '/torch/', timeout=15)" "$TORCH_CPU_INDEX" >/dev/null 2>&1; then
+    log "torch: $TORCH_SPEC from PyTorch's CPU index ($TORCH_CPU_INDEX)"
+    "$VENV/bin/python" -m pip install -q --index-url "$TORCH_CPU_INDEX" "$TORCH_SPEC" && return 0
+    log "torch: PyTorch's CPU index failed: falling back to the default index"
+  elif [ -z "${GRT_TORCH:-}" ]; then
+    log "torch: PyTorch's CPU index ($TORCH_CPU_INDEX) cannot be reached: $TORCH_SPEC from the default index"
+  fi
+  "$VENV/bin/python" -m pip install -q "$TORCH_SPEC"
+}
+torch_build() {
+  "$VENV/bin/python" -c 'import torch; print(f"torch {torch.__version__}, the " + (f"CUDA {torch.version.cuda} build" if torch.version.cuda else "CPU build"))'
+}
 if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$HASH" ]; then
   log "Python packages up to date ($VENV)"
 else
   log "installing Python packages into $VENV (torch: $TORCH_SPEC)"
   "$VENV/bin/python" -m pip install -q --upgrade pip
   # torch first and pinned: an unpinned torch (pulled by a dependency) fetches GBs of CUDA wheels.
-  "$VENV/bin/python" -m pip install -q "$TORCH_SPEC"
+  install_torch
   "$VENV/bin/python" -m pip install -q -e ".[dev]"
-  "$VENV/bin/python" -m pip install -q --no-deps "$CGN_SPEC"
+  "$VENV/bin/python" -m grt.setup cgn   # Contact-GraspNet's weights (cgn-pytorch without its pins)
   echo "$HASH" > "$STAMP"
 fi
+log "installed: $(torch_build)"
 # Optional: Debian's Chromium, which the report's browser test (tests/report/test_browser.py) drives
 # headless; without it that test is skipped. Never fails the set-up.
 if [ "${GRT_SKIP_CHROMIUM:-0}" != 1 ] && ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
@@ -117,19 +135,8 @@ fi
 # folder of its own that only the simulator workers running that policy put first on their path
 # (grt/evaluators/worker_env.py); GRT's main process keeps its numpy 2.
 MP_DIR=${GRT_MOTIONPLANNING_DIR:-.motionplanning}
-MP_NUMPY="numpy==1.26.4"
 if [ "$MOTIONPLANNING" = 1 ]; then
-  if [ -f "$MP_DIR/.grt-stamp" ] && [ "$(cat "$MP_DIR/.grt-stamp")" = "$MP_NUMPY" ]; then
-    log "motion planning: $MP_NUMPY in $MP_DIR up to date"
-  else
-    log "motion planning: installing $MP_NUMPY into $MP_DIR (for the workers of policy=motion_planner)"
-    rm -rf "$MP_DIR.tmp"
-    "$VENV/bin/python" -m pip install -q --target "$MP_DIR.tmp" --no-deps "$MP_NUMPY"
-    "$VENV/bin/python" -m pip install -q "mplib==0.1.1"   # normally there already (a ManiSkill dependency)
-    rm -rf "$MP_DIR" && mv "$MP_DIR.tmp" "$MP_DIR"
-    echo "$MP_NUMPY" > "$MP_DIR/.grt-stamp"
-  fi
-  PYTHONPATH="$MP_DIR" "$VENV/bin/python" -c 'import numpy, mplib; assert numpy.__version__ == "1.26.4"' \
-    || die "motion planning: numpy 1.26.4 and mplib do not import together from $MP_DIR; delete it and re-run"
+  # the same command an installed GRT's user runs (python -m grt.setup motionplanning), into the checkout's folder
+  "$VENV/bin/python" -m grt.setup motionplanning --dir "$MP_DIR" || die "motion planning: the set-up above failed"
 fi
-log "done: $("$VENV/bin/python" -c 'import torch, grt; print("torch", torch.__version__, "| grt", grt.__version__)')"
+log "done: $(torch_build) | grt $("$VENV/bin/python" -c 'import grt; print(grt.__version__)')"

@@ -70,6 +70,7 @@ ABOUT = {
     "report": "the paper's tables (and report.html) of a run, a sweep or an experiments/ folder",
     "replay": "re-run one trial of a red-team run (a candidate's or the nominal object's), optionally filmed",
     "objects": "list the built-in objects (size, faces, named regions), optionally export them",
+    "setup": "install what an optional policy needs: ManiSkill's motion planners' numpy, Contact-GraspNet's weights",
     "calibrate": "check a ManiSkill task's nominal swap against the stock env, seed for seed (agreement, mass, "
                  "extents)",
 }

@@ -57,7 +57,7 @@ def worker_path(policy: dict | None) -> list[str]:
         if not path.is_dir():
             target = (policy or {}).get("_target_", "the policy")
             raise WorkerPathError(f"policy.{KEY}: {path} does not exist; {target} runs its workers with it first "
-                                  "on their path: run the set-up its config names (e.g. `make motionplanning`)")
+                                  "on their path: run the set-up its config names (e.g. `python -m grt.setup motionplanning`)")
         found.append(str(path))
     return found
 

@@ -49,8 +49,8 @@ from torch import nn
 from grt.errors import UserError
 
 NUM_NEIGHBORS = 64  # max_num_neighbors of every ball in the checkpoint's set abstraction
-INSTALL_HINT = ("pip install --no-deps cgn-pytorch==0.4.3 (bash scripts/setup.sh installs it; the wheel "
-                "holds the weights)")
+INSTALL_HINT = ("python -m grt.setup cgn installs them (pip install --no-deps cgn-pytorch==0.4.3: the wheel holds "
+                "the weights)")
 
 
 class CGNWeightsError(UserError, RuntimeError):  # RuntimeError: what caught it before still does

@@ -9,7 +9,7 @@ reads from the env (peg, charger).
 
 mplib needs numpy 1.x: every mplib wheel (0.1.0, 0.1.1, 0.2.1) crashes in ``Planner()`` under numpy 2. So
 this policy runs only in simulator workers that import numpy 1.26 from their own folder first
-(``worker_path``, :mod:`grt.evaluators.worker_env`), made once by ``make motionplanning``; GRT's main
+(``worker_path``, :mod:`grt.evaluators.worker_env`), made once by ``python -m grt.setup motionplanning``; GRT's main
 process builds the policy (a cheap object that checks the set-up) but never imports mplib.
 
 Config (``conf/policy/motion_planner.yaml``)::
@@ -32,8 +32,8 @@ from pathlib import Path
 from grt.errors import UserError
 from grt.policies.base import EnvDriverPolicy
 
-#: the one set-up command that makes the workers' numpy 1.26 (scripts/setup.sh --motionplanning)
-SETUP_COMMAND = "make motionplanning"
+#: the one set-up command that makes the workers' numpy 1.26 (in a checkout also `make motionplanning`)
+SETUP_COMMAND = "python -m grt.setup motionplanning"
 #: where ManiSkill keeps its Panda solutions, one module per task (``pick_cube.py`` for ``PickCube-v1``)
 SOLUTIONS = "mani_skill.examples.motionplanning.panda.solutions"
 

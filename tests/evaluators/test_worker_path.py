@@ -69,7 +69,7 @@ def test_numpy_126_reads_numpy2_protocol5_pickles_once_mapped(tmp_path):
 
 
 def test_a_worker_path_that_does_not_exist_or_cannot_apply_is_refused(tmp_path):
-    with pytest.raises(WorkerPathError, match=r"does not exist.*make motionplanning"):
+    with pytest.raises(WorkerPathError, match=r"does not exist.*grt.setup motionplanning"):
         worker_path(_policy(tmp_path / "missing"))
     with pytest.raises(WorkerPathError, match="start_method=spawn"):
         WorkerPool(TASK, _policy(tmp_path), workers=1, start_method="forkserver")

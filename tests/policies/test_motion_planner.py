@@ -50,7 +50,7 @@ def test_without_the_setup_the_planner_is_one_line_naming_it(tmp_path, capsys):
                                      f"paths.motionplanning={tmp_path / 'missing'}"], tmp_path / "out", capsys)
     errors = [line for line in err.splitlines() if line.startswith("error:")]
     assert code == 2 and "Traceback" not in err and len(errors) == 1, err
-    assert "`make motionplanning`" in errors[0] and "numpy 2" in errors[0]
+    assert "`python -m grt.setup motionplanning`" in errors[0] and "numpy 2" in errors[0]
     assert not (tmp_path / "out" / "evaluation.json").exists()
 
 

@@ -93,3 +93,27 @@ def test_a_refresh_returning_nan_stops_the_evaluation_naming_it(user_pkg, tmp_pa
     line = error_line(err.split("\n", 1)[1])  # after the progress bar's line
     assert code == 2 and "ended in sim_error" in line and "RefreshError: task.session.refresh=userpkg.refreshes.nan " \
                                                            "returned cube_half_size=nan (not finite)" in line, line
+
+
+@pytest.mark.sim
+def test_a_refresh_is_checked_by_the_public_helper_against_the_stock_env_and_a_scaled_candidate(tmp_path):
+    """The stale-nominal check pointed at a GRT test file; ``check_refresh`` takes a task YAML of the user's."""
+    from pathlib import Path
+
+    from grt.tasks.maniskill.refresh_check import check_refresh
+
+    yaml = tmp_path / "mine.yaml"
+    yaml.write_text((Path(__file__).resolve().parents[2] / "conf" / "task" / "push_cube.yaml").read_text())
+    (row,) = check_refresh(str(yaml), scale=1.3)
+    assert row["attribute"] == "cube_half_size" and row["nominal_error_m"] < 1e-6
+    assert row["stock"] == pytest.approx([0.02]) and row["scaled"] == pytest.approx([0.026], abs=1e-6)
+    stale = (tmp_path / "stale.py")
+    stale.write_text("def stock(env, swap):\n    return {'cube_half_size': 0.02}\n")
+    sys.path.insert(0, str(tmp_path))
+    try:
+        text = yaml.read_text().replace("refresh: grt.tasks.maniskill.refresh.push_cube", "refresh: stale.stock")
+        yaml.write_text(text)
+        (row,) = check_refresh(str(yaml), scale=1.3)
+        assert row["scaled"] == pytest.approx([0.02])  # a refresh that ignores the candidate: caught
+    finally:
+        sys.path.remove(str(tmp_path))
