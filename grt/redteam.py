@@ -110,7 +110,7 @@ class RedTeamLoop:
         self.validity, self.racing = validity, racing
         if racing is not None and not getattr(evaluator, "races", False):
             log.warning("budget.racing=true: %s runs every trial of a candidate (it cannot stop one early), "
-                        "so this run races nothing; evaluator=sim or evaluator=ray race", type(evaluator).__name__)
+                        "so this run races nothing; evaluator=sim, ray and gpu race", type(evaluator).__name__)
             self.racing = None
         self.evaluations = 0
 

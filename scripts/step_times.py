@@ -51,10 +51,10 @@ def main(trials: int, overrides: list[str]) -> None:
     parts = make_collision("coacd", cache_dir=str(Path(cfg.paths.cache_dir) / "coacd")).parts(mesh)
     session.load_object(mesh, parts)
     times: dict[str, list[float]] = defaultdict(list)
-    if hasattr(session, "_step_env"):  # a closed-loop task: the policy acts, then the simulation steps
+    if hasattr(session, "_step_batch"):  # a closed-loop task: the policy acts, then the simulation steps
         session.policy.act = timed(times, "act", session.policy.act)
-        session._step_env = timed(times, "sim", session._step_env)
-        session._reset_env = timed(times, "reset", session._reset_env)
+        session._step_batch = timed(times, "sim", session._step_batch)
+        session._reset_batch = timed(times, "reset", session._reset_batch)
     else:  # the grasp task
         env = session.unwrapped
         session.env.step = timed(times, "control step", session.env.step)

@@ -24,6 +24,7 @@ import logging
 import multiprocessing as mp
 import os
 import signal
+import socket
 import sys
 import time
 import traceback
@@ -37,46 +38,17 @@ import hydra.utils
 import numpy as np
 import trimesh
 
-from grt.evaluators.base import SIM_ERROR
+from grt.evaluators.base import Job, OnTrial, TrialPool, sim_error
 from grt.evaluators.worker_env import WorkerPathError, accept_numpy2_pickles, spawn_path, worker_path
 from grt.policies.base import PolicyInterrupted, PolicyServerError, PolicyUnavailable
 from grt.targets import worker_error
 from grt.tasks.base import TrialOutcome
 
+__all__ = ["Job", "WorkerPool", "build_session", "prepare_job", "run_seed", "sim_error", "worker_limits"]
+
 log = logging.getLogger(__name__)
 #: re-runs of one trial whose policy connection broke, before the policy counts as unavailable
 MAX_INTERRUPTIONS = 3
-
-
-@dataclass
-class Job:
-    """Trials of one candidate for one worker.
-
-    Attributes:
-        job_id: unique within a :meth:`WorkerPool.run` call.
-        candidate: index of the candidate mesh.
-        vertices: ``(V, 3)`` mesh vertices (m); faces: ``(F, 3)``.
-        parts: convex collision parts, each ``(K, 3)`` (m).
-        seeds: the episode seeds still to run, in order.
-        render_dir: folder for one picture per trial, or ``None``.
-        policy: a policy config to run these trials with instead of the pool's own (``None``: the pool's);
-            the worker re-instantiates it only when it or its checkpoint file changed.
-    """
-
-    job_id: int
-    candidate: int
-    vertices: np.ndarray
-    faces: np.ndarray
-    parts: list[np.ndarray]
-    seeds: list[int]
-    render_dir: str | None = None
-    metadata: dict = field(default_factory=dict)
-    policy: dict | None = None
-
-
-def sim_error(seed: int, reason: str, **info) -> TrialOutcome:
-    """A trial that produced no outcome because the simulation failed; ``info["error"]`` says why."""
-    return TrialOutcome(seed=int(seed), score=0.0, success=False, mode=SIM_ERROR, info={"error": reason, **info})
 
 
 def build_session(task: dict, policy: dict):
@@ -116,7 +88,7 @@ def worker_main(task: dict, policy: dict, conn: Connection, threads: int | None 
 
 
 def _run_job(session, job: Job, conn: Connection, using: dict | None = None) -> None:
-    mesh = trimesh.Trimesh(job.vertices, job.faces, process=False, metadata=dict(job.metadata))
+    mesh = job.mesh()
     start = time.perf_counter()  # the first trial's time includes loading the object
     load_error = prepare_job(session, mesh, job.parts, job.seeds, job.policy, using)
     conn.send(("loaded", job.job_id))
@@ -128,10 +100,11 @@ def _run_job(session, job: Job, conn: Connection, using: dict | None = None) -> 
     conn.send(("done", job.job_id))
 
 
-def prepare_job(session, mesh: trimesh.Trimesh, parts: list[np.ndarray], seeds: list[int], policy: dict | None,
+def prepare_job(session, mesh: trimesh.Trimesh | None, parts: list[np.ndarray] | None, seeds: list[int], policy: dict | None,
                 using: dict | None) -> str | None:
     """Make ``session`` ready for a job's trials: its policy (``using``: the worker's record of the policy it
-    holds, see :func:`_use_policy`), the candidate's object, the batched plans of its seeds.
+    holds, see :func:`_use_policy`), the candidate's object (``None``: the task's stock object), the batched
+    plans of its seeds.
 
     Returns:
         ``None``, or why the job's trials cannot run (each then becomes a ``sim_error``).
@@ -147,7 +120,7 @@ def prepare_job(session, mesh: trimesh.Trimesh, parts: list[np.ndarray], seeds: 
     return load_error
 
 
-def run_seed(session, mesh: trimesh.Trimesh, parts: list[np.ndarray], seed: int, load_error: str | None,
+def run_seed(session, mesh: trimesh.Trimesh | None, parts: list[np.ndarray] | None, seed: int, load_error: str | None,
              render_dir: str | None, candidate: int) -> tuple[TrialOutcome, str | None]:
     """One trial of a prepared job (:func:`prepare_job`): its outcome (a ``sim_error`` when the job could
     not be prepared or the trial raised), and the job's load error after it (a failed trial rebuilds the
@@ -223,7 +196,7 @@ def _use_policy(session, policy: dict | None, using: dict) -> str | None:
     return None
 
 
-def _load(session, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> str | None:
+def _load(session, mesh: trimesh.Trimesh | None, parts: list[np.ndarray] | None) -> str | None:
     try:
         session.load_object(mesh, parts)
     except Exception as exc:
@@ -330,8 +303,8 @@ def _reset_foreign_start_method() -> None:
         mp.set_start_method("spawn", force=True)
 
 
-class WorkerPool:
-    """Worker processes that each hold one task session.
+class WorkerPool(TrialPool):
+    """Worker processes that each hold one task session (``evaluator=sim``'s :class:`~grt.evaluators.base.TrialPool`).
 
     Args:
         task: task config as a plain dict (``task["session"]`` is instantiated in each worker).
@@ -398,7 +371,7 @@ class WorkerPool:
         while len(self.workers) < self.num_workers:
             self.workers.append(self._spawn())
 
-    def run(self, jobs: list[Job], on_trial: Callable[[Job, TrialOutcome, float], None]) -> None:
+    def run(self, jobs: deque[Job] | list[Job], on_trial: OnTrial) -> None:
         """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order. A ``deque`` of jobs is
         the pool's queue itself: ``on_trial`` may add jobs to it (racing: a candidate's next round).
 
@@ -415,6 +388,12 @@ class WorkerPool:
     def all_ready(self) -> bool:
         """Whether every worker is running and has built its session."""
         return len(self.workers) == self.num_workers and all(w.ready for w in self.workers)
+
+    def info(self) -> dict:
+        """The ``evaluator`` block of ``summary.json``: one node (this machine), its workers and their trials."""
+        return {"backend": "pool", "address": None, "nodes": 1, "actors": self.num_workers,
+                "trials_per_node": {socket.gethostname(): self.trials} if self.trials else {},
+                "workers_replaced": self.restarts, "trial_timeout": self.trial_timeout}
 
     def wait_ready(self) -> None:
         """Start the workers and return once every one has built its session (what a progress bar's

@@ -82,15 +82,15 @@ class SimActor:
 
     def load(self, geometry: tuple, policy: dict | None, seeds: list[int], render_dir: str | None,
              candidate: int) -> str | None:
-        """Prepare a job: ``geometry`` is ``(vertices, faces, parts, metadata)`` (from the object store).
-        Returns ``None`` or why its trials cannot run (each then is a ``sim_error``)."""
-        import trimesh
-
+        """Prepare a job: ``geometry`` is ``(vertices, faces, parts, metadata)`` (from the object store; vertices
+        ``None``: the task's stock object). Returns ``None`` or why its trials cannot run (each then is a
+        ``sim_error``)."""
+        from grt.evaluators.base import candidate_mesh
         from grt.evaluators.pool import prepare_job
 
         vertices, faces, parts, metadata = geometry
         self.clock = time.perf_counter()  # the job's first trial's time includes this loading
-        self.mesh = trimesh.Trimesh(vertices, faces, process=False, metadata=dict(metadata))
+        self.mesh = candidate_mesh(vertices, faces, metadata)
         self.parts, self.render_dir, self.candidate = parts, render_dir, int(candidate)
         self.load_error = prepare_job(self.session, self.mesh, parts, list(seeds), policy, self.using)
         return self.load_error

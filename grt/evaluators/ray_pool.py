@@ -35,16 +35,16 @@ import sys
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from grt.errors import UserError
-from grt.evaluators.pool import THREAD_VARIABLES, Job, blame_first_seed, worker_limits
+from grt.evaluators.base import Job, OnTrial, TrialPool
+from grt.evaluators.pool import THREAD_VARIABLES, blame_first_seed, worker_limits
 from grt.evaluators.sim import SimEvaluator
 from grt.evaluators.worker_env import python_path, worker_path
 from grt.policies.base import PolicyServerError
 from grt.targets import worker_error
-from grt.tasks.base import TrialOutcome
 
 log = logging.getLogger(__name__)
 #: trial calls in flight per actor: the next one waits in the actor while the current one runs
@@ -189,8 +189,9 @@ class _Actor:
         return self.setup is None and self.node is not None
 
 
-class RayPool:
-    """Simulator actors on a Ray cluster, with :class:`~grt.evaluators.pool.WorkerPool`'s interface.
+class RayPool(TrialPool):
+    """Simulator actors on a Ray cluster (``evaluator=ray``'s :class:`~grt.evaluators.base.TrialPool`), with
+    :class:`~grt.evaluators.pool.WorkerPool`'s semantics.
 
     Args:
         task, policy: plain-dict configs.
@@ -319,7 +320,7 @@ class RayPool:
         while not all(a.ready for a in self.actors):
             self._poll(lambda *_: None, deque(), {})
 
-    def run(self, jobs: list[Job], on_trial: Callable[[Job, TrialOutcome, float], None]) -> None:
+    def run(self, jobs: deque[Job] | list[Job], on_trial: OnTrial) -> None:
         """Run every job's seeds; ``on_trial(job, outcome, seconds)`` once per seed, in any order; ``on_trial``
         may add jobs to a ``deque`` given as ``jobs`` (the pool's)."""
         self.start()
@@ -506,9 +507,10 @@ class RayEvaluator(SimEvaluator):
         self._startup_timeout = startup_timeout
         super().__init__(task, policy, workers=workers, **kwargs)
 
-    def _make_pool(self, task, policy, workers, start_method, max_retries, trial_timeout, threads):
-        return RayPool(task, policy, workers, max_retries, trial_timeout, self._startup_timeout, threads,
-                       **self._ray_options)
+    def _make_pool(self) -> TrialPool:
+        a = self._pool_args
+        return RayPool(self.task, self.policy, a["workers"], a["max_retries"], self.trial_timeout,
+                       self._startup_timeout, a["threads"], **self._ray_options)
 
     def start(self, say=lambda line: print(line, flush=True)) -> float:
         if say is not None and not self.pool.all_ready:
@@ -517,7 +519,4 @@ class RayEvaluator(SimEvaluator):
             say(f"Ray {ray.__version__} at {self.pool.address} ({_gcs_address()}): {nodes} node{'s' * (nodes != 1)}, "
                 f"{self.pool.limits['cluster'].get('CPU', 0):g} CPUs")
         return super().start(say)
-
-    def backend_info(self) -> dict:
-        return self.pool.info()
 

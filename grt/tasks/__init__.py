@@ -19,7 +19,8 @@ from grt import CONF_DIR
 from grt.objects import list_objects
 from grt.policies.base import POLICY_KINDS, policy_kind
 from grt.targets import build, locate
-from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TaskSession, TrialOutcome
+from grt.tasks.base import COMMON_MODES, TaskInputError, TaskSession, TrialOutcome
+from grt.tasks.batched import EpisodeSession
 
 TASK_CONF = Path(CONF_DIR) / "task"  # the shipped tasks, in a checkout or an installed wheel
 POLICY_CONF = TASK_CONF.parent / "policy"

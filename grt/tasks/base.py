@@ -23,7 +23,9 @@ from __future__ import annotations
 import ast
 import importlib.util
 import re
+import time
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,7 +33,6 @@ import numpy as np
 import trimesh
 
 from grt.errors import UserError
-from grt.policies.base import check_actions
 
 SUCCESS, SIM_ERROR = "success", "sim_error"
 #: The trial modes of every task: its success condition held, or the simulation itself failed.
@@ -86,12 +87,12 @@ class TaskInputError(UserError):
 
 @dataclass
 class TrialOutcome:
-    """The result of one seeded trial.
+    """The result of one seeded trial (built by :func:`trial_outcome` alone).
 
     Attributes:
         seed: the episode seed (object pose randomization and the policy's sampling).
         score: the task metric of this trial (1.0 / 0.0 for binary tasks).
-        success: whether the task succeeded.
+        success: whether the task succeeded (the mode is ``success``).
         mode: ``success`` or a failure mode, one of the task's :attr:`TaskSession.failure_modes`.
         info: JSON-serializable details (timings in seconds, grasp width in meters, ...).
     """
@@ -103,8 +104,77 @@ class TrialOutcome:
     info: dict[str, Any] = field(default_factory=dict)
 
 
+def trial_outcome(seed: int, mode: str, score: float, info: dict | None = None) -> TrialOutcome:
+    """The one way a :class:`TrialOutcome` is made: ``success`` is ``mode == "success"``."""
+    return TrialOutcome(seed=int(seed), score=float(score), success=mode == SUCCESS, mode=str(mode),
+                        info=dict(info or {}))
+
+
+def sim_error(seed: int, reason: str, **info) -> TrialOutcome:
+    """A trial that produced no outcome because the simulation failed; ``info["error"]`` says why."""
+    return trial_outcome(seed, SIM_ERROR, 0.0, {"error": reason, **info})
+
+
+#: the objects a session loads: a mesh (m) and its convex parts ``(K, 3)`` each; ``(None, None)``: the task's
+#: own stock object (a ManiSkill task's stock actor; a task without one refuses it)
+Objects = list[tuple[trimesh.Trimesh | None, list[np.ndarray] | None]]
+
+
+class Episodes:
+    """The episodes of one :meth:`TaskSession.run_episodes` call, one per sub-scene, as a task plays them.
+
+    Attributes:
+        seeds: sub-scene ``i``'s episode seed.
+        steps: ``(N,)`` control steps sub-scene ``i``'s episode took.
+        info: per sub-scene, what its episode recorded so far (kept when it ends in a failure).
+    """
+
+    def __init__(self, seeds: Sequence[int]):
+        self.seeds = [int(s) for s in seeds]
+        self.steps = np.zeros(len(self.seeds), np.int64)
+        self.info: list[dict] = [{} for _ in self.seeds]
+        self._ended: list[tuple[str, float] | None] = [None] * len(self.seeds)
+
+    @property
+    def running(self) -> np.ndarray:
+        """``(N,)`` whether sub-scene ``i``'s episode has not ended yet."""
+        return np.array([e is None for e in self._ended], bool)
+
+    def end(self, i: int, mode: str, score: float, info: dict | None = None) -> None:
+        """Sub-scene ``i``'s episode ended in ``mode`` with ``score``; ``info``: the task's state at its end."""
+        self._ended[i] = (mode, float(score))
+        if info is not None:
+            self.info[i] = dict(info)
+
+    def fail(self, i: int, reason: str) -> None:
+        """Sub-scene ``i``'s simulation failed (``reason``: ``"Type: message"``): a ``sim_error``."""
+        self._ended[i] = (SIM_ERROR, 0.0)
+        self.info[i] = {**self.info[i], "error": reason}
+
+    def fail_running(self, reason: str) -> None:
+        """Every episode still running failed (an exception of the simulator or of the policy)."""
+        for i in np.flatnonzero(self.running):
+            self.fail(int(i), reason)
+
+    def outcomes(self, wall_s: float) -> list[TrialOutcome]:
+        """One outcome per sub-scene: its mode and score, ``info`` as recorded (floats to 6 digits) with
+        ``steps`` and ``wall_s`` (the call's seconds over its sub-scenes)."""
+        out = []
+        for seed, ended, info, steps in zip(self.seeds, self._ended, self.info, self.steps, strict=True):
+            mode, score = ended if ended is not None else (SIM_ERROR, 0.0)
+            info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
+            out.append(trial_outcome(seed, mode, score, {**info, "steps": int(steps), "wall_s": wall_s}))
+        return out
+
+
 class TaskSession(ABC):
     """One environment, many objects, many trials. Subclasses take plain typed arguments.
+
+    Every trial of every task runs through one protocol, :meth:`run_episodes`: the env's ``num_envs``
+    sub-scenes (one on the CPU, many in a GPU simulation) each run one seeded episode on the object loaded
+    there, and each ends in a :class:`TrialOutcome`. A task says how its episodes are played
+    (:meth:`_play`: a closed-loop policy stepped every control step, a policy that drives the env itself, a
+    planned grasp) and how objects are loaded (:meth:`load_objects`).
 
     Usage (what an evaluator worker does)::
 
@@ -125,10 +195,26 @@ class TaskSession(ABC):
     #: observation groups this task produces (name -> shape without the batch dimension).
     obs_spec: dict[str, tuple[int, ...]] = {}
     num_actions: int = 0
+    #: parallel sub-scenes of the session's env: one episode each per :meth:`run_episodes`.
+    num_envs: int = 1
+    #: the policy under test (``None`` in a learning worker).
+    policy = None
+
+    @classmethod
+    def max_sub_scenes(cls, sim_backend: str) -> int | None:
+        """The most sub-scenes one env of this session can have on ``sim_backend`` (``None``: no limit):
+        one, unless the task runs its episodes batched (:class:`grt.tasks.batched.EpisodeSession`)."""
+        return 1
 
     @classmethod
     def check_object(cls, mesh: trimesh.Trimesh, **session_kwargs) -> None:
         """Raise a user error (message naming the fix) if this task cannot use ``mesh`` at all."""
+        return None
+
+    @classmethod
+    def check_candidate(cls, mesh: trimesh.Trimesh, **session_kwargs) -> None:
+        """Raise if :meth:`load_objects` would refuse ``mesh``, so that an evaluator can count one candidate's
+        trials as failed before it shares an env with the others."""
         return None
 
     @classmethod
@@ -146,20 +232,55 @@ class TaskSession(ABC):
         return None
 
     @abstractmethod
-    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        """Rebuild the scene around a new object.
+    def load_objects(self, objects: Objects, assignment: Sequence[int]) -> None:
+        """Sub-scene ``i`` holds ``objects[assignment[i]]`` from the next episode on.
 
         Args:
-            mesh: the visual mesh, meters, z up, resting on z = 0, centered in x/y.
-            parts: convex collision parts, each a ``(K, 3)`` vertex array in the mesh's frame (m).
+            objects: the distinct objects, each a visual mesh (meters, z up, resting on z = 0, centered in x/y)
+                and its convex collision parts, each a ``(K, 3)`` vertex array in the mesh's frame (m).
+            assignment: ``num_envs`` indices into ``objects``.
 
         Raises:
-            ValueError: if ``parts`` is empty or a part does not build into a collision shape.
+            ValueError: if an object has no parts or a part does not build into a collision shape.
         """
 
+    def load_object(self, mesh: trimesh.Trimesh | None, parts: list[np.ndarray] | None) -> None:
+        """Every sub-scene holds ``mesh`` with its convex ``parts`` (see :meth:`load_objects`)."""
+        self.load_objects([(mesh, parts)], [0] * self.num_envs)
+
     @abstractmethod
+    def _play(self, episodes: Episodes) -> None:
+        """Play sub-scene ``i``'s episode with ``episodes.seeds[i]`` on its object until each has ended
+        (:meth:`Episodes.end`, :meth:`Episodes.fail`), counting its control steps in ``episodes.steps``.
+        An exception ends every episode still running as a ``sim_error``."""
+
+    def run_episodes(self, seeds: Sequence[int]) -> list[TrialOutcome]:
+        """Run sub-scene ``i``'s episode with ``seeds[i]`` (``len(seeds) == num_envs``); one outcome each.
+
+        Args:
+            seeds: one episode seed per sub-scene (repeats allowed: two objects on the same episode).
+
+        Returns:
+            One :class:`TrialOutcome` per sub-scene, in order; ``info`` the task's record of the episode (its
+            state at the last step), ``steps`` and ``wall_s`` (the call's seconds over ``num_envs``). A physics
+            failure, a non-finite state or a policy's unusable output is that episode's ``sim_error``.
+        """
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"run_episodes needs one seed per sub-scene ({self.num_envs}), got {len(seeds)}")
+        episodes = Episodes(seeds)
+        start = time.perf_counter()
+        try:
+            self._play(episodes)
+        except Exception as err:  # physics or policy failures must not pass silently
+            episodes.fail_running(f"{type(err).__name__}: {err}")
+        return episodes.outcomes((time.perf_counter() - start) / self.num_envs)
+
     def run_trial(self, seed: int) -> TrialOutcome:
-        """Run one episode on the loaded object; deterministic given ``seed``."""
+        """Run one episode on the loaded object (a session of one sub-scene); deterministic given ``seed``."""
+        if self.num_envs != 1:
+            raise ValueError(f"run_trial runs one episode; this session has {self.num_envs} sub-scenes: "
+                             "use run_episodes(seeds)")
+        return self.run_episodes([seed])[0]
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release the simulator."""
@@ -169,138 +290,6 @@ class TaskSession(ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-class EpisodeSession(TaskSession):
-    """A task whose policy acts every control step: one session serves evaluation *and* learning.
-
-    The same methods drive a red-team trial (:meth:`run_trial`) and a reinforcement-learning worker
-    (:meth:`reset` / :meth:`step`, used by :class:`grt.rl.vec_env.TaskVecEnv`), so a policy is trained
-    and red-teamed in the very same environment. Subclasses build the ManiSkill env and implement
-    :meth:`observe`, :meth:`judge` and :meth:`load_object`.
-
-    Args:
-        policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` in a learning worker).
-        max_steps: control steps per episode (the episode ends earlier at success).
-        rebuild_each_trial: rebuild the scene before every evaluation trial (~30 ms), so that an
-            outcome depends only on (object, seed), whatever ran before in this process.
-    """
-
-    policy_kinds = ("closed_loop",)
-    #: the task's name (``conf/task/<name>.yaml``), checked against a learned policy's training task.
-    task_name: str = ""
-    #: worst cases (s) measured on a loaded machine: one control step (the policy's act, the simulation and the
-    #: observation; the slowest trial's mean), a trial's reset (the scene rebuilt); ``None``: not measured
-    STEP_S: float | None = None
-    RESET_S: float = 0.0
-    #: the gymnasium env a subclass builds (``gym.make``), closed and rendered by the methods below.
-    env = None
-
-    def __init__(self, policy=None, max_steps: int = 256, rebuild_each_trial: bool = True):
-        self.policy, self.max_steps, self.rebuild_each_trial = policy, int(max_steps), bool(rebuild_each_trial)
-        self.steps = 0
-
-    @classmethod
-    def trial_seconds(cls, **session_kwargs) -> float | None:
-        """The reset and ``max_steps`` control steps at the measured worst case (:attr:`STEP_S`,
-        :attr:`RESET_S`); ``None`` for a task that measured none (see :meth:`TaskSession.trial_seconds`)."""
-        if cls.STEP_S is None:
-            return None
-        return cls.RESET_S + int(session_kwargs.get("max_steps") or init_default(cls, "max_steps")) * cls.STEP_S
-
-    def set_policy(self, policy) -> None:
-        """Run the next trials with ``policy`` (checked against this task's observations and actions)."""
-        self.policy = policy
-        self._check_policy()
-
-    def _check_policy(self) -> None:
-        """Refuse a policy that declares a different task or observation (see :func:`grt.tasks.check_policy`)."""
-        check = getattr(self.policy, "check", None)
-        if check is not None:
-            check(self.task_name, self.obs_spec, self.num_actions)
-
-    def close(self) -> None:
-        if self.env is not None:
-            self.env.close()
-
-    def render(self, path: str) -> None:
-        """Write a PNG of the scene as it is now (the env's human render camera)."""
-        from PIL import Image
-
-        image = self.env.unwrapped.render_rgb_array()
-        Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
-
-    # --- what a subclass provides --------------------------------------------------------------------
-    @abstractmethod
-    def _reset_env(self, seed: int, rebuild: bool) -> None:
-        """Reset the env with ``seed`` (rebuilding the scene when asked)."""
-
-    @abstractmethod
-    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
-        """Apply one action; returns ``(reward, success, info)``."""
-
-    @abstractmethod
-    def observe(self) -> dict[str, np.ndarray]:
-        """The policy's observation groups, unbatched (shapes as :attr:`obs_spec`)."""
-
-    @abstractmethod
-    def judge(self, success: bool, info: dict) -> str:
-        """The trial's mode (``success`` or a failure mode) from the final state."""
-
-    def hopeless(self, info: dict) -> bool:
-        """End an evaluation trial early: nothing the policy does can succeed any more (e.g. the
-        object left the gripper). Learning episodes always run to success or the time limit."""
-        return False
-
-    def score(self, success: bool, info: dict) -> float:
-        """The trial's score: ``float(success)`` for binary tasks; continuous tasks override."""
-        return float(success)
-
-    # --- learning interface --------------------------------------------------------------------------
-    def reset(self, seed: int, rebuild: bool = False) -> dict[str, np.ndarray]:
-        """Start an episode; returns the first observation."""
-        self._reset_env(int(seed), rebuild)
-        self.steps = 0
-        return self.observe()
-
-    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict]:
-        """One control step: ``(obs, reward, terminated, truncated, info)``; terminated = success."""
-        action = np.clip(np.asarray(action, np.float32).reshape(self.num_actions), -1.0, 1.0)
-        reward, success, info = self._step_env(action)
-        self.steps += 1
-        info["success"] = bool(success)
-        return self.observe(), float(reward), bool(success), self.steps >= self.max_steps, info
-
-    # --- evaluation protocol -------------------------------------------------------------------------
-    def run_trial(self, seed: int) -> TrialOutcome:
-        import time
-
-        start = time.perf_counter()
-        info: dict = {}
-        try:
-            obs = self.reset(seed, rebuild=self.rebuild_each_trial)
-            self.policy.reset(seed)
-            done, success = False, False
-            while not done:  # a NaN or misshapen action: a sim_error naming the policy, from the first step on
-                action = check_actions(self.policy.act({k: v[None] for k, v in obs.items()}), (1, self.num_actions),
-                                       self.policy)[0]
-                obs, _, success, truncated, info = self.step(action)
-                self._check(info)
-                done = success or truncated or self.hopeless(info)
-            mode = self.judge(success, info)
-            score = self.score(success, info)
-        except Exception as err:  # physics failures must not pass silently
-            mode, score, success = SIM_ERROR, 0.0, False
-            info = {"error": f"{type(err).__name__}: {err}"}
-        info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
-        info.update(steps=self.steps, wall_s=time.perf_counter() - start)
-        return TrialOutcome(seed=int(seed), score=float(score), success=mode == "success", mode=mode, info=info)
-
-    def _check(self, info: dict) -> None:
-        """Raise on a non-finite state (subclasses add runaway checks)."""
-        for k, v in info.items():
-            if isinstance(v, float) and not np.isfinite(v):
-                raise FloatingPointError(f"non-finite {k} in the simulation state")
 
 
 def init_default(cls: type, name: str):

@@ -1,37 +1,35 @@
-"""Batched episodes: one env, ``num_envs`` sub-scenes, each with its own object and episode seed.
+"""Closed-loop episodes, batched: one env, ``num_envs`` sub-scenes, each with its own object and episode seed.
 
-A :class:`BatchedEpisodes` session runs many trials at once in one ManiSkill env: on ``physx_cuda`` every
-parallel sub-scene holds its own object (ManiSkill's per-sub-scene builders, then ``Actor.merge``), and
-one :meth:`BatchedEpisodes.run_episodes` call runs sub-scene ``i``'s episode with ``seeds[i]`` until each
-has ended. The task's observations, success and failure flags come from the env's batched
-``(num_envs, ...)`` tensors; the episode protocol is :meth:`grt.tasks.base.EpisodeSession.run_trial`'s, per
-sub-scene:
+An :class:`EpisodeSession` is a task whose policy acts every control step. One
+:meth:`~grt.tasks.base.TaskSession.run_episodes` call runs sub-scene ``i``'s episode with ``seeds[i]`` until
+each has ended; on ``physx_cuda`` every parallel sub-scene holds its own object (ManiSkill's per-sub-scene
+builders, then ``Actor.merge``), on ``physx_cpu`` there is one (what every CPU worker runs). The task's
+observations, success and failure flags come from the env's batched ``(num_envs, ...)`` tensors:
 
-- a sub-scene's episode ends at success, at ``max_steps``, when :meth:`hopeless_batch` says so, or at a
-  simulation failure (:meth:`check_batch`: a non-finite state, a runaway object); its outcome is judged
-  from its state *at that step* (the task's :meth:`~grt.tasks.base.EpisodeSession.judge` and
-  :meth:`~grt.tasks.base.EpisodeSession.score`), and it then idles (zero actions) while the others run;
+- a sub-scene's episode ends at success, at ``max_steps``, when :meth:`EpisodeSession.hopeless_batch` says so,
+  or at a simulation failure (:meth:`EpisodeSession.check_batch`: a non-finite state, a runaway object); its
+  outcome is judged from its state *at that step* (the task's :meth:`~EpisodeSession.judge` and
+  :meth:`~EpisodeSession.score`), and it then idles (zero actions) while the others run;
 - an exception of the simulator or of the policy ends every sub-scene still running as ``sim_error``.
 
-With ``num_envs=1`` (``physx_cpu``, what every CPU worker runs) this *is* the task's ``run_trial``: the
-single-env hooks of :class:`grt.tasks.base.EpisodeSession` (``_reset_env``, ``_step_env``, ``observe``) are
-the batched ones at sub-scene 0, so a CPU trial and sub-scene ``i`` of a GPU batch start from the same
-seeded state (the same socket pose, arm noise, ...) and are judged by the same code.
+The same session serves learning: :meth:`EpisodeSession.reset` / :meth:`EpisodeSession.step` (used by
+:class:`grt.rl.vec_env.TaskVecEnv`) are the batched hooks at sub-scene 0, so a policy is trained and
+red-teamed in the very same environment, and a CPU trial and sub-scene ``i`` of a GPU batch start from the
+same seeded state (the same socket pose, arm noise, ...) and are judged by the same code.
 """
 
 from __future__ import annotations
 
-import time
+import gc
 from abc import abstractmethod
 from collections.abc import Sequence
 
 import numpy as np
-import trimesh
 
 from grt.policies.base import PolicyOutputError, check_actions, policy_name
-from grt.tasks.base import SIM_ERROR, TrialOutcome
+from grt.tasks.base import Episodes, Objects, TaskSession, init_default
 
-Objects = list[tuple[trimesh.Trimesh, list[np.ndarray]]]
+__all__ = ["EpisodeSession", "Objects", "info_at", "policy_reset", "to_numpy"]
 
 
 def to_numpy(value) -> np.ndarray:
@@ -56,62 +54,126 @@ def policy_reset(policy, seeds: Sequence[int]) -> None:
         policy.reset(int(seeds[0]))
 
 
-class BatchedEpisodes:
-    """Mixin for an :class:`grt.tasks.base.EpisodeSession` whose env runs ``num_envs`` sub-scenes at once.
+class EpisodeSession(TaskSession):
+    """A task whose policy acts every control step, its episodes batched over the env's sub-scenes.
 
-    A subclass implements the batched hooks (:meth:`load_objects`, :meth:`_reset_batch`,
-    :meth:`_step_batch`, :meth:`observe_batch`) and may refine :meth:`check_batch`,
-    :meth:`hopeless_batch` and :meth:`start_errors`; this class derives the single-env hooks from them.
-    It comes first in the bases (``class InsertionSession(BatchedEpisodes, EpisodeSession)``).
+    A subclass builds the ManiSkill env (:meth:`_make_env` for GRT's own envs) and implements the batched
+    hooks :meth:`load_objects`, :meth:`_step_batch` and :meth:`judge` (and, for other than GRT's envs,
+    :meth:`_reset_batch` and :meth:`observe_batch`); it may refine :meth:`check_batch`,
+    :meth:`hopeless_batch`, :meth:`start_errors`, :meth:`clip_actions` and :meth:`score`.
+
+    Args:
+        policy: a :class:`grt.policies.base.BatchedPolicy` (``None`` in a learning worker).
+        max_steps: control steps per episode (the episode ends earlier at success).
+        rebuild_each_trial: rebuild the scene before every evaluation trial (~30 ms), so that an
+            outcome depends only on (object, seed), whatever ran before in this process.
+
+    A subclass's ``num_envs``, ``sim_backend``, ``render_backend`` and ``sim_config`` arguments are ManiSkill's
+    (:meth:`_make_env`; ``num_envs > 1`` needs ``physx_cuda``): the evaluators set them, a task config need not.
     """
 
-    num_envs: int = 1
+    policy_kinds = ("closed_loop",)
+    #: the task's name (``conf/task/<name>.yaml``), checked against a learned policy's training task.
+    task_name: str = ""
+    #: worst cases (s) measured on a loaded machine: one control step (the policy's act, the simulation and the
+    #: observation; the slowest trial's mean), a trial's reset (the scene rebuilt); ``None``: not measured
+    STEP_S: float | None = None
+    RESET_S: float = 0.0
+    #: the gymnasium env a subclass builds (``gym.make``), closed and rendered by the methods below, and its
+    #: ManiSkill env (``env.unwrapped``)
+    env = unwrapped = None
+
+    def __init__(self, policy=None, max_steps: int = 256, rebuild_each_trial: bool = True):
+        self.policy, self.max_steps, self.rebuild_each_trial = policy, int(max_steps), bool(rebuild_each_trial)
+        self.steps = 0
+        self._object_changed, self._obs = True, None
 
     @classmethod
     def max_sub_scenes(cls, sim_backend: str) -> int | None:
-        """The most sub-scenes one env of this session can have on ``sim_backend`` (``None``: no limit):
-        ManiSkill's CPU simulation runs one (``physx_cpu`` refuses ``num_envs > 1``)."""
+        """ManiSkill's CPU simulation runs one sub-scene per env (``physx_cpu`` refuses ``num_envs > 1``)."""
         return 1 if sim_backend == "physx_cpu" else None
 
     @classmethod
-    def check_candidate(cls, mesh: trimesh.Trimesh, **session_kwargs) -> None:
-        """Raise if :meth:`load_objects` would refuse ``mesh`` (as ``load_object`` would on the CPU), so that an
-        evaluator can count one candidate's trials as failed before it shares an env with the others."""
-        return None
+    def trial_seconds(cls, **session_kwargs) -> float | None:
+        """The reset and ``max_steps`` control steps at the measured worst case (:attr:`STEP_S`,
+        :attr:`RESET_S`); ``None`` for a task that measured none (see :meth:`TaskSession.trial_seconds`)."""
+        if cls.STEP_S is None:
+            return None
+        return cls.RESET_S + int(session_kwargs.get("max_steps") or init_default(cls, "max_steps")) * cls.STEP_S
+
+    def _make_env(self, env_id: str, num_envs: int, sim_backend: str, render_backend: str, sim_config: dict | None,
+                  **env_kwargs) -> None:
+        """Build one of GRT's own envs (``obs_mode=none``: the session reads ``task_obs``; a dense reward for
+        learning) with ``num_envs`` sub-scenes, and keep the long-lived heap out of ManiSkill's ``gc.collect()``."""
+        import gymnasium as gym
+
+        self.num_envs = int(num_envs)
+        self.env = gym.make(env_id, obs_mode="none", num_envs=self.num_envs, sim_backend=sim_backend,
+                            render_backend=render_backend, sim_config=dict(sim_config or {}), reward_mode="dense",
+                            **env_kwargs)
+        self.unwrapped = self.env.unwrapped
+        gc.collect()
+        gc.freeze()  # ManiSkill's reconfigure runs gc.collect(): keep the long-lived heap out of it
+
+    def set_policy(self, policy) -> None:
+        """Run the next trials with ``policy`` (checked against this task's observations and actions)."""
+        self.policy = policy
+        self._check_policy()
+
+    def _check_policy(self) -> None:
+        """Refuse a policy that declares a different task or observation (see :func:`grt.tasks.check_policy`)."""
+        check = getattr(self.policy, "check", None)
+        if check is not None:
+            check(self.task_name, self.obs_spec, self.num_actions)
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+
+    def render(self, path: str) -> None:
+        """Write a PNG of the scene as it is now (the env's human render camera)."""
+        from PIL import Image
+
+        image = self.env.unwrapped.render_rgb_array()
+        Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
 
     # --- what a subclass provides --------------------------------------------------------------------
-    @abstractmethod
     def load_objects(self, objects: Objects, assignment: Sequence[int]) -> None:
-        """Sub-scene ``i`` holds ``objects[assignment[i]]`` (mesh, convex parts) from the next reset on.
+        """Sub-scene ``i`` holds ``objects[assignment[i]]`` from the next reset on (GRT's envs: ``set_objects``)."""
+        self.unwrapped.set_objects(objects, list(assignment))
+        self._object_changed = True
 
-        Args:
-            objects: the distinct objects, each a mesh (m) and its convex parts ``(K, 3)``.
-            assignment: ``num_envs`` indices into ``objects``.
-        """
-
-    @abstractmethod
     def _reset_batch(self, seeds: Sequence[int], rebuild: bool) -> None:
-        """Reset every sub-scene, sub-scene ``i`` with ``seeds[i]`` (rebuilding the scene when asked)."""
+        """Reset every sub-scene, sub-scene ``i`` with ``seeds[i]`` (rebuilding the scene when asked, or when the
+        objects changed)."""
+        self._obs, _ = self.env.reset(seed=[int(s) for s in seeds],
+                                      options=dict(reconfigure=bool(rebuild or self._object_changed)))
+        self._object_changed = False
 
     @abstractmethod
     def _step_batch(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Apply actions ``(N, A)``; returns rewards ``(N,)``, success flags ``(N,)`` and the task's state
         ``{key: (N,)}`` (floats and bools; the keys of a trial's ``info``)."""
 
-    @abstractmethod
     def observe_batch(self) -> dict[str, np.ndarray]:
-        """The policy's observation groups, batched ``{group: (N, ...)}``."""
+        """The policy's observation groups, batched ``{group: (N, ...)}`` (GRT's envs: ``task_obs``)."""
+        return self.unwrapped.task_obs()
+
+    @abstractmethod
+    def judge(self, success: bool, info: dict) -> str:
+        """The trial's mode (``success`` or a failure mode) from one sub-scene's final state."""
+
+    def score(self, success: bool, info: dict) -> float:
+        """The trial's score: ``float(success)`` for binary tasks; continuous tasks override."""
+        return float(success)
 
     def start_errors(self) -> list[str | None]:
         """Per sub-scene, why its episode could not start (e.g. no IK solution), or ``None``."""
         return [None] * self.num_envs
 
     def check_batch(self, info: dict[str, np.ndarray]) -> list[str | None]:
-        """Per sub-scene, the simulation failure its state shows (``"FloatingPointError: ..."``), or ``None``.
-
-        The first non-finite float key in ``info``'s order names it, as
-        :meth:`grt.tasks.base.EpisodeSession._check` does; subclasses add runaway checks after it.
-        """
+        """Per sub-scene, the simulation failure its state shows (``"FloatingPointError: ..."``), or ``None``:
+        the first non-finite float key in ``info``'s order names it; subclasses add runaway checks after it."""
         errors: list[str | None] = [None] * len(next(iter(info.values())))
         for key, value in info.items():
             if value.dtype.kind != "f":
@@ -121,123 +183,90 @@ class BatchedEpisodes:
                     errors[i] = f"FloatingPointError: non-finite {key} in the simulation state"
         return errors
 
+    def hopeless_batch(self, info: dict[str, np.ndarray]) -> np.ndarray:
+        """Per sub-scene, whether nothing the policy does can succeed any more (ends an evaluation early, e.g.
+        the object left the gripper). Learning episodes always run to success or the time limit."""
+        return np.zeros(len(next(iter(info.values()))), bool)
+
     def clip_actions(self, actions: np.ndarray) -> np.ndarray:
-        """Actions ``(N, A)`` clipped to what the env takes (GRT's tasks: [-1, 1], as ``EpisodeSession.step``)."""
+        """Actions ``(N, A)`` clipped to what the env takes (GRT's tasks: [-1, 1])."""
         return np.clip(actions, -1.0, 1.0)
 
     def hull_tally(self) -> dict:
         """The last scene build's convex hulls: ``parts`` built and the most PhysX grew one (``max_inflation_m``)."""
-        return {}
+        return dict(getattr(self.unwrapped, "hull_tally", None) or {})
 
-    def hopeless_batch(self, info: dict[str, np.ndarray]) -> np.ndarray:
-        """Per sub-scene, whether nothing the policy does can succeed any more (ends an evaluation early)."""
-        return np.zeros(len(next(iter(info.values()))), bool)
+    # --- learning interface: the batched hooks at sub-scene 0 -----------------------------------------
+    def reset(self, seed: int, rebuild: bool = False) -> dict[str, np.ndarray]:
+        """Start an episode (every sub-scene with ``seed``); returns sub-scene 0's first observation.
 
-    # --- the single-env hooks of EpisodeSession, at sub-scene 0 ---------------------------------------
-    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        """Every sub-scene holds ``mesh`` (with its convex parts)."""
-        self.load_objects([(mesh, parts)], [0] * self.num_envs)
-
-    def _reset_env(self, seed: int, rebuild: bool) -> None:
+        Raises:
+            RuntimeError: the episode cannot start (the learning workers skip such a start).
+        """
         self._reset_batch([int(seed)] * self.num_envs, rebuild)
+        self.steps = 0
         error = self.start_errors()[0]
-        if error is not None:  # the learning workers skip a start the robot cannot reach
+        if error is not None:
             raise RuntimeError(error.split(": ", 1)[-1])
+        return self.observe()
 
-    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
-        reward, success, info = self._step_batch(np.broadcast_to(action, (self.num_envs, len(action))))
-        return float(reward[0]), bool(success[0]), info_at(info, 0)
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict]:
+        """One control step of sub-scene 0: ``(obs, reward, terminated, truncated, info)``; terminated = success."""
+        action = self.clip_actions(np.asarray(action, np.float32).reshape(1, self.num_actions))
+        reward, success, info = self._step_batch(np.repeat(action, self.num_envs, axis=0))
+        self.steps += 1
+        info = {**info_at(info, 0), "success": bool(success[0])}
+        return self.observe(), float(reward[0]), bool(success[0]), self.steps >= self.max_steps, info
 
     def observe(self) -> dict[str, np.ndarray]:
+        """Sub-scene 0's observation groups, unbatched (shapes as :attr:`obs_spec`)."""
         return {k: v[0] for k, v in self.observe_batch().items()}
 
-    def run_trial(self, seed: int) -> TrialOutcome:
-        if self.num_envs != 1:
-            raise ValueError(f"run_trial runs one episode; this session has {self.num_envs} sub-scenes: "
-                             "use run_episodes(seeds)")
-        return self.run_episodes([seed])[0]
+    # --- the evaluation protocol ------------------------------------------------------------------------
+    def _play(self, episodes: Episodes) -> None:
+        """Reset every sub-scene with its seed, then step them all with the policy until each has ended."""
+        self._reset_batch(episodes.seeds, self.rebuild_each_trial)
+        self.steps = 0
+        for i, error in enumerate(self.start_errors()):
+            if error is not None:
+                episodes.fail(i, error)
+        if episodes.running.any():
+            policy_reset(self.policy, episodes.seeds)
+        while episodes.running.any():
+            self._run_step(episodes)
 
-    # --- the evaluation protocol, batched ---------------------------------------------------------------
-    def run_episodes(self, seeds: Sequence[int], policy=None) -> list[TrialOutcome]:
-        """Run sub-scene ``i``'s episode with ``seeds[i]`` (``len(seeds) == num_envs``); one outcome each.
-
-        Args:
-            seeds: one episode seed per sub-scene (repeats allowed: two objects on the same episode).
-            policy: a :class:`grt.policies.base.BatchedPolicy` (``None``: the session's).
-
-        Returns:
-            One :class:`TrialOutcome` per sub-scene, in order; ``info`` as a single trial's (the task's state
-            at the episode's last step, ``steps``, ``wall_s``: the batch's seconds over ``num_envs``).
-        """
-        seeds = [int(s) for s in seeds]
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"run_episodes needs one seed per sub-scene ({self.num_envs}), got {len(seeds)}")
-        policy = self.policy if policy is None else policy
-        start, n = time.perf_counter(), self.num_envs
-        ended: list[tuple[str, float, dict] | None] = [None] * n
-        steps = np.zeros(n, np.int64)
-
-        def end_all(err: Exception) -> None:
-            for i in range(n):
-                if ended[i] is None:
-                    ended[i] = (SIM_ERROR, 0.0, {"error": f"{type(err).__name__}: {err}"})
-
-        try:
-            self._reset_batch(seeds, self.rebuild_each_trial)
-            self.steps = 0
-            for i, error in enumerate(self.start_errors()):
-                if error is not None:
-                    ended[i] = (SIM_ERROR, 0.0, {"error": error})
-            if any(e is None for e in ended):
-                policy_reset(policy, seeds)
-            while any(e is None for e in ended):
-                self._run_step(policy, ended, steps)
-        except Exception as err:  # physics or policy failures must not pass silently
-            end_all(err)
-        per_trial = (time.perf_counter() - start) / n
-        outcomes = []
-        for i, (mode, score, info) in enumerate(ended):
-            info = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in info.items()}
-            info.update(steps=int(steps[i]), wall_s=per_trial)
-            outcomes.append(TrialOutcome(seed=seeds[i], score=float(score), success=mode == "success", mode=mode,
-                                         info=info))
-        return outcomes
-
-    def _actions(self, policy, obs: dict, running: np.ndarray, ended: list) -> np.ndarray:
+    def _actions(self, obs: dict, episodes: Episodes) -> np.ndarray:
         """The policy's ``(num_envs, num_actions)`` actions, clipped; an ended episode's are zero (it idles until
         the others end). A misshapen batch fails every running episode, a non-finite action its own: each a
-        ``sim_error`` naming the policy (:func:`grt.policies.base.check_actions`), as a single trial's."""
+        ``sim_error`` naming the policy (:func:`grt.policies.base.check_actions`)."""
         shape = (self.num_envs, self.num_actions)
-        raw = policy.act(obs)
+        raw = self.policy.act(obs)
         try:
-            actions = check_actions(raw, shape, policy)
+            actions = check_actions(raw, shape, self.policy)
         except PolicyOutputError as err:
             actions = np.asarray(raw, np.float64) if np.shape(raw) == shape else None
             if actions is None:
                 raise
-            for i in np.flatnonzero(running & ~np.isfinite(actions).all(axis=1)):
-                ended[i] = (SIM_ERROR, 0.0, {"error": f"{type(err).__name__}: policy {policy_name(policy)} returned a "
-                                                      f"non-finite action {actions[i].round(4).tolist()}"})
-            running = np.array([e is None for e in ended])
+            for i in np.flatnonzero(episodes.running & ~np.isfinite(actions).all(axis=1)):
+                episodes.fail(int(i), f"{type(err).__name__}: policy {policy_name(self.policy)} returned a "
+                                      f"non-finite action {actions[i].round(4).tolist()}")
             actions = np.where(np.isfinite(actions), actions, 0.0)
         actions = self.clip_actions(actions.astype(np.float32))
-        actions[~running] = 0.0
+        actions[~episodes.running] = 0.0
         return actions
 
-    def _run_step(self, policy, ended: list, steps: np.ndarray) -> None:
+    def _run_step(self, episodes: Episodes) -> None:
         """One control step of every sub-scene; ends (judges) those whose episode is over."""
-        running = np.array([e is None for e in ended])
-        obs = self.observe_batch()
-        actions = self._actions(policy, obs, running, ended)
-        running = np.array([e is None for e in ended])  # less any episode whose action was not finite
-        reward, success, info = self._step_batch(actions)
-        steps[running] += 1
+        actions = self._actions(self.observe_batch(), episodes)
+        running = episodes.running  # less any episode whose action was not finite
+        _, success, info = self._step_batch(actions)
+        episodes.steps[running] += 1
         self.steps += 1
         errors = self.check_batch(info)
         over = success | self.hopeless_batch(info) | (self.steps >= self.max_steps)
         for i in np.flatnonzero(running):
             if errors[i] is not None:
-                ended[i] = (SIM_ERROR, 0.0, {"error": errors[i]})
+                episodes.fail(int(i), errors[i])
             elif over[i]:
                 state = {**info_at(info, i), "success": bool(success[i])}
-                ended[i] = (self.judge(bool(success[i]), state), self.score(bool(success[i]), state), state)
+                episodes.end(int(i), self.judge(bool(success[i]), state), self.score(bool(success[i]), state), state)

@@ -18,15 +18,12 @@ is attached at the same mounting frame, so the policy does not see the deformati
 
 from __future__ import annotations
 
-import gc
-
-import gymnasium as gym
 import numpy as np
 import trimesh
 
 from grt.policies.drawer_action import GRASP_ROT
-from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError
-from grt.tasks.batched import BatchedEpisodes, Objects, to_numpy
+from grt.tasks.base import COMMON_MODES, TaskInputError
+from grt.tasks.batched import EpisodeSession, to_numpy
 from grt.tasks.drawer_env import HANDLE_ROT, MAX_OPENING, STATE_DIM, CabinetSpec, DrawerEnv
 
 __all__ = ["DrawerEnv", "DrawerSession", "HandleFitError", "handle_grasp_point"]
@@ -96,7 +93,7 @@ def check_handle(mesh: trimesh.Trimesh, grasp_point: np.ndarray, cabinet: Cabine
                              f"closes around at most {MAX_GRIP * 1000:.0f} mm: use a thinner grip, or check its units")
 
 
-class DrawerSession(BatchedEpisodes, EpisodeSession):
+class DrawerSession(EpisodeSession):
     """Drawer-opening episodes of one policy on one handle at a time, or on ``num_envs`` sub-scenes at once.
 
     Args:
@@ -105,27 +102,23 @@ class DrawerSession(BatchedEpisodes, EpisodeSession):
         grasp_point: the nominal grasp point (m, handle frame); ``None``: the built-in handle's.
         max_steps: control steps per episode (paper: 500).
         cabinet: :class:`grt.tasks.drawer_env.CabinetSpec` fields to override.
-        env_id: the registered ManiSkill env; env: further :class:`DrawerEnv` arguments.
-        rebuild_each_trial: see :class:`grt.tasks.base.EpisodeSession`.
-        num_envs, sim_backend, render_backend, sim_config: ManiSkill's (``num_envs > 1`` needs
-            ``physx_cuda``; :mod:`grt.tasks.batched`); the evaluators set them, a task config need not.
+        env_id, env: the registered ManiSkill env and further :class:`DrawerEnv` arguments.
+        rebuild_each_trial, num_envs, sim_backend, render_backend, sim_config: see
+            :class:`grt.tasks.batched.EpisodeSession`.
     """
 
-    num_actions = 9
-    task_name = "drawer"
+    task_name, score_name = "drawer", "opening"
+    obs_spec, num_actions = {"state": (STATE_DIM,)}, 9
     failure_modes = (*COMMON_MODES, "missed_handle", "slipped", "partial_open", "timeout")
     # worst cases measured at a load average of 13 on 2 cores (scripts/step_times.py, drawer_state): a control
     # step 15.7 ms on average (4.4 ms at load 11), a reset at most 0.47 s; rounded up
     STEP_S, RESET_S = 0.02, 0.5
-    score_name = "opening"
-    obs_spec = {"state": (STATE_DIM,)}
 
     def __init__(self, policy=None, handle_object: str = "drawer_handle", grasp_point=None, max_steps: int = 500,
                  cabinet: dict | None = None, env_id: str = "GRT-Drawer-v1", env: dict | None = None,
                  rebuild_each_trial: bool = True, num_envs: int = 1, sim_backend: str = "physx_cpu",
                  render_backend: str = "cpu", sim_config: dict | None = None):
         super().__init__(policy, max_steps, rebuild_each_trial)
-        self.num_envs = int(num_envs)
         from grt.geometry.mesh import load_mesh
 
         self.grasp_point = handle_grasp_point(str(handle_object), grasp_point)
@@ -133,13 +126,8 @@ class DrawerSession(BatchedEpisodes, EpisodeSession):
         check_handle(load_mesh(handle_object), self.grasp_point, self.cabinet, "the nominal handle")
         self.obs_spec = self.observation_spec()
         self._check_policy()
-        self.env = gym.make(env_id, obs_mode="none", num_envs=self.num_envs, sim_backend=sim_backend,
-                            render_backend=render_backend, sim_config=dict(sim_config or {}), reward_mode="dense",
-                            grasp_point=tuple(self.grasp_point), cabinet=dict(cabinet or {}), **(env or {}))
-        self.unwrapped: DrawerEnv = self.env.unwrapped
-        self._object_changed = True
-        gc.collect()
-        gc.freeze()  # ManiSkill's reconfigure runs gc.collect(): keep the long-lived heap out of it
+        self._make_env(env_id, num_envs, sim_backend, render_backend, sim_config,
+                       grasp_point=tuple(self.grasp_point), cabinet=dict(cabinet or {}), **(env or {}))
 
     @classmethod
     def check_object(cls, mesh: trimesh.Trimesh, handle_object: str = "drawer_handle", grasp_point=None,
@@ -152,14 +140,9 @@ class DrawerSession(BatchedEpisodes, EpisodeSession):
         check_handle(load_mesh(handle_object), point, spec, "the nominal handle")
         check_handle(mesh, point, spec)
 
-    def load_objects(self, objects: Objects, assignment) -> None:
-        self.unwrapped.set_objects(objects, list(assignment))
-        self._object_changed = True
-
-    # --- BatchedEpisodes hooks -----------------------------------------------------------------------
+    # --- EpisodeSession hooks ------------------------------------------------------------------------
     def _reset_batch(self, seeds, rebuild: bool) -> None:
-        self.env.reset(seed=[int(s) for s in seeds], options=dict(reconfigure=rebuild or self._object_changed))
-        self._object_changed = False
+        super()._reset_batch(seeds, rebuild)
         self._held = np.zeros(self.num_envs, bool)
         self._reached = np.zeros(self.num_envs, bool)
 
@@ -172,12 +155,6 @@ class DrawerSession(BatchedEpisodes, EpisodeSession):
         self._reached = self._reached | (state["tcp_to_grasp"] < 0.03)
         state.update(ever_held=self._held.copy(), reached=self._reached.copy())
         return to_numpy(reward), to_numpy(info["success"]).astype(bool), state
-
-    def observe_batch(self) -> dict[str, np.ndarray]:
-        return self.unwrapped.task_obs()
-
-    def hull_tally(self) -> dict:
-        return dict(self.unwrapped.hull_tally)
 
     def score(self, success: bool, info: dict) -> float:
         return float(info["opening"])

@@ -176,6 +176,8 @@ class DrawerEnv(TaskEnv):
         sim_freq, control_freq: physics and control rates (Hz).
     """
 
+    object_word = "handle"
+
     SUPPORTED_ROBOTS = ["panda_drawer"]
     agent: PandaDrawer
     robot_base = (0.0, 0.0, 0.0)
@@ -199,36 +201,12 @@ class DrawerEnv(TaskEnv):
         pose = sapien_utils.look_at([c.front_x - 0.55, 0.55, c.drawer_z + 0.35], [c.front_x - 0.1, 0.0, c.drawer_z])
         return CameraConfig("render_camera", pose, 512, 512, 0.9, 0.01, 10)
 
-    def set_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        """The next handle of every sub-scene (meters, handle frame: mounting plane z = 0) and its convex parts."""
-        self.set_objects([(mesh, parts)])
-
-    def set_objects(self, objects: list[tuple[trimesh.Trimesh, list[np.ndarray]]],
-                    assignment: list[int] | None = None) -> None:
-        """The next handles: sub-scene ``i`` holds ``objects[assignment[i]]`` (``None``: every one the first);
-        takes effect at the next reconfigure."""
-        if any(len(parts) == 0 for _, parts in objects):
-            raise ValueError("a handle needs at least one convex collision part")
-        self.handle_meshes = [mesh for mesh, _ in objects]
-        self.handle_parts_of = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
-        self.handle_mesh, self.handle_parts = self.handle_meshes[0], self.handle_parts_of[0]  # the first handle
-        self._assignment = None if assignment is None else np.asarray(assignment, np.int64)
-
-    def object_of_env(self) -> np.ndarray:
-        """``(num_envs,)`` index of each sub-scene's handle in the objects given to :meth:`set_objects`."""
-        if self._assignment is None:
-            return np.zeros(self.num_envs, np.int64)
-        if len(self._assignment) != self.num_envs:
-            raise ValueError(f"set_objects gave {len(self._assignment)} sub-scene assignments for "
-                             f"{self.num_envs} sub-scenes")
-        return self._assignment
-
     # ------------------------------------------------------------------ scene
     def _load_scene(self, options: dict):
         self.ground = build_ground(self.scene)
         cabinets, shapes, self.hull_tally = [], [], new_tally()
         for i, j in enumerate(self.object_of_env()):
-            art, built = build_cabinet(self.scene, self.cabinet, self.handle_meshes[j], self.handle_parts_of[j],
+            art, built = build_cabinet(self.scene, self.cabinet, self.object_meshes[j], self.object_parts_of[j],
                                        self.handle_friction, self.handle_density, scene_idxs=[i], name=f"cabinet_{i}",
                                        tally=self.hull_tally)
             self.remove_from_state_dict_registry(art)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import sapien
+import trimesh
 from mani_skill.envs.sapien_env import BaseEnv
 from mani_skill.sensors.camera import CameraConfig
 from mani_skill.utils.structs.types import SimConfig
@@ -43,6 +44,33 @@ class TaskEnv(BaseEnv):
     def compute_normalized_dense_reward(self, obs, action, info):
         reward = self.compute_dense_reward(obs, action, info)
         return reward if self.max_dense_reward == 1.0 else reward / self.max_dense_reward
+
+    # ------------------------------------------------------------------ the objects of the sub-scenes
+    #: what the task's object is called in messages (``plug``, ``handle``)
+    object_word: str = "object"
+
+    def set_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
+        """The next object of every sub-scene (meters, the task's object frame) and its convex parts ``(K, 3)``."""
+        self.set_objects([(mesh, parts)])
+
+    def set_objects(self, objects: list[tuple[trimesh.Trimesh, list[np.ndarray]]],
+                    assignment: list[int] | None = None) -> None:
+        """The next objects: sub-scene ``i`` holds ``objects[assignment[i]]`` (``None``: every one the first);
+        takes effect at the next reconfigure (``object_meshes``, ``object_parts_of``: float64 ``(K, 3)``)."""
+        if any(len(parts) == 0 for _, parts in objects):
+            raise ValueError(f"a {self.object_word} needs at least one convex collision part")
+        self.object_meshes = [mesh for mesh, _ in objects]
+        self.object_parts_of = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
+        self._assignment = None if assignment is None else np.asarray(assignment, np.int64)
+
+    def object_of_env(self) -> np.ndarray:
+        """``(num_envs,)`` index of each sub-scene's object in the objects given to :meth:`set_objects`."""
+        if self._assignment is None:
+            return np.zeros(self.num_envs, np.int64)
+        if len(self._assignment) != self.num_envs:
+            raise ValueError(f"set_objects gave {len(self._assignment)} sub-scene assignments for "
+                             f"{self.num_envs} sub-scenes")
+        return self._assignment
 
     def robot_root(self) -> sapien.Pose | None:
         """The robot's root pose for IK (:class:`grt.tasks.motion.PandaIK`): ``None`` on the CPU, where the

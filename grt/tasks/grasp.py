@@ -40,10 +40,9 @@ import time
 
 import gymnasium as gym
 import numpy as np
-import trimesh
 
 from grt.policies.base import GraspObservation, GraspStepPolicy, check_actions, check_grasps
-from grt.tasks.base import COMMON_MODES, TaskSession, TrialOutcome, init_default
+from grt.tasks.base import COMMON_MODES, SUCCESS, Episodes, Objects, TaskSession, init_default
 from grt.tasks.grasp_env import GraspEnv  # registers GRT-Grasp-v1 (env docstring: Description, ...)
 from grt.tasks.motion import PandaIK, offset_along_approach, rotate_about_z, translated
 
@@ -127,7 +126,11 @@ class GraspSession(TaskSession):
     def unwrapped(self):
         return self.env.unwrapped
 
-    def load_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
+    def load_objects(self, objects: Objects, assignment) -> None:
+        """The object (meters) of the session's one sub-scene and its convex parts; the scene is rebuilt."""
+        mesh, parts = objects[int(assignment[0])]
+        if mesh is None:
+            raise ValueError("the grasp task has no stock object: give it a mesh and its convex parts")
         self._planned.clear()
         self.unwrapped.set_object(mesh, parts)
         self.env.reset(seed=0, options=dict(reconfigure=True))
@@ -143,22 +146,16 @@ class GraspSession(TaskSession):
         image = self.unwrapped.render_rgb_array()
         Image.fromarray(np.asarray(image[0], dtype=np.uint8)).save(path)
 
-    def run_trial(self, seed: int) -> TrialOutcome:
-        info: dict = {}
+    def _play(self, episodes: Episodes) -> None:
+        """The episode of the session's one sub-scene (see the module docstring)."""
+        info = episodes.info[0]
         self._sim_steps, self._sim_s = 0, 0.0
-        start = time.perf_counter()
         try:
-            mode = self._episode(int(seed), info)
-        except Exception as err:  # physics / rendering failures must not pass silently
-            mode, info["error"] = "sim_error", f"{type(err).__name__}: {err}"
-        info["wall_s"] = time.perf_counter() - start
-        info["control_steps"], info["sim_s"] = self._sim_steps, self._sim_s
-        try:
-            info["object_final"] = self._object_pose().round(6).tolist()  # (x, y, z) m
-        except Exception:  # the scene itself may be what failed
-            info["object_final"] = None
-        success = mode == "success"
-        return TrialOutcome(seed=int(seed), score=float(success), success=success, mode=mode, info=info)
+            mode = self._episode(episodes.seeds[0], info)
+        finally:  # after a failure too: the simulated steps, their seconds, where the object ended up
+            episodes.steps[0] = self._sim_steps
+            info["sim_s"], info["object_final"] = self._sim_s, self._final_position()
+        episodes.end(0, mode, float(mode == SUCCESS))
 
     # --- episode -------------------------------------------------------------------------------------
     def _episode(self, seed: int, info: dict) -> str:
@@ -308,6 +305,13 @@ class GraspSession(TaskSession):
 
     def _object_pose(self) -> np.ndarray:
         return self.unwrapped.obj.pose.p[0].numpy().astype(np.float64)
+
+    def _final_position(self) -> list[float] | None:
+        """The object's position (x, y, z; m) now, ``None`` when the scene itself is what failed."""
+        try:
+            return self._object_pose().round(6).tolist()
+        except Exception:  # noqa: BLE001
+            return None
 
     def _move(self, q_to: np.ndarray, steps: int) -> None:
         """Smoothstep joint interpolation from the last target to ``q_to`` over ``steps`` control steps."""

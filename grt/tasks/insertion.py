@@ -17,14 +17,11 @@ goes into the same socket as the nominal plug.
 
 from __future__ import annotations
 
-import gc
-
-import gymnasium as gym
 import numpy as np
 import trimesh
 
-from grt.tasks.base import COMMON_MODES, EpisodeSession
-from grt.tasks.batched import BatchedEpisodes, Objects, to_numpy
+from grt.tasks.base import COMMON_MODES
+from grt.tasks.batched import EpisodeSession, Objects, to_numpy
 from grt.tasks.insertion_env import GRIP_DIM, STATE_DIM, InsertEnv  # registers GRT-Insert-v1
 from grt.tasks.socket import PlugFitError, build_socket, grip_half_width
 
@@ -84,7 +81,7 @@ def check_tip(mesh: trimesh.Trimesh, what: str = "the plug") -> None:
                            f"mesh.apply_translation([0, 0, {-tip:.4f}])) and export it again")
 
 
-class InsertionSession(BatchedEpisodes, EpisodeSession):
+class InsertionSession(EpisodeSession):
     """Insertion episodes of one policy on one plug at a time, or on ``num_envs`` sub-scenes at once.
 
     Args:
@@ -95,10 +92,9 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
         clearance, chamfer: the socket's hole (m per side) and entrance chamfer (m).
         max_steps: control steps per episode (paper: 256).
         cloud_points: points in the ``cloud`` observation (paper: 500; 0 for state-only policies).
-        env_id: the registered ManiSkill env; env: further :class:`InsertEnv` arguments.
-        rebuild_each_trial: see :class:`grt.tasks.base.EpisodeSession`.
-        num_envs, sim_backend, render_backend, sim_config: ManiSkill's (``num_envs > 1`` needs
-            ``physx_cuda``; :mod:`grt.tasks.batched`); the evaluators set them, a task config need not.
+        env_id, env: the registered ManiSkill env and further :class:`InsertEnv` arguments.
+        rebuild_each_trial, num_envs, sim_backend, render_backend, sim_config: see
+            :class:`grt.tasks.batched.EpisodeSession`.
     """
 
     num_actions = 6
@@ -115,7 +111,6 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
                  env: dict | None = None, rebuild_each_trial: bool = True, num_envs: int = 1,
                  sim_backend: str = "physx_cpu", render_backend: str = "cpu", sim_config: dict | None = None):
         super().__init__(policy, max_steps, rebuild_each_trial)
-        self.num_envs = int(num_envs)
         from grt.geometry.mesh import load_mesh
 
         self.head_length, self.grip_height = plug_geometry(str(socket_object), head_length, grip_height)
@@ -125,15 +120,9 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
         self.socket = build_socket(nominal, self.head_length, clearance=clearance, chamfer=chamfer)
         self.obs_spec = self.observation_spec(cloud_points=cloud_points)
         self._check_policy()
-        self.env = gym.make(env_id, obs_mode="none", num_envs=self.num_envs, sim_backend=sim_backend,
-                            render_backend=render_backend, sim_config=dict(sim_config or {}), reward_mode="dense",
-                            head_length=self.head_length, grip_height=self.grip_height,
-                            cloud_points=int(cloud_points), plug=nominal, **(env or {}))
-        self.unwrapped: InsertEnv = self.env.unwrapped
+        self._make_env(env_id, num_envs, sim_backend, render_backend, sim_config, head_length=self.head_length,
+                       grip_height=self.grip_height, cloud_points=int(cloud_points), plug=nominal, **(env or {}))
         self.unwrapped.set_socket(self.socket)
-        self._object_changed = True
-        gc.collect()
-        gc.freeze()  # ManiSkill's reconfigure runs gc.collect(): keep the long-lived heap out of it
 
     @classmethod
     def observation_spec(cls, cloud_points: int = 500, **_) -> dict[str, tuple[int, ...]]:
@@ -168,13 +157,11 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
     def load_objects(self, objects: Objects, assignment) -> None:
         for mesh, _ in objects:
             _check_grip(mesh, self.grip_height)
-        self.unwrapped.set_objects(objects, list(assignment))
-        self._object_changed = True
+        super().load_objects(objects, assignment)
 
-    # --- BatchedEpisodes hooks -----------------------------------------------------------------------
+    # --- EpisodeSession hooks ------------------------------------------------------------------------
     def _reset_batch(self, seeds, rebuild: bool) -> None:
-        self.env.reset(seed=[int(s) for s in seeds], options=dict(reconfigure=rebuild or self._object_changed))
-        self._object_changed = False
+        super()._reset_batch(seeds, rebuild)
         self._touched = np.zeros(self.num_envs, bool)
 
     def start_errors(self) -> list[str | None]:
@@ -189,12 +176,6 @@ class InsertionSession(BatchedEpisodes, EpisodeSession):
                                          & (state["tip_off_axis"] < 0.01))
         state["touched_socket"] = self._touched.copy()
         return to_numpy(reward), to_numpy(info["success"]).astype(bool), state
-
-    def observe_batch(self) -> dict[str, np.ndarray]:
-        return self.unwrapped.task_obs()
-
-    def hull_tally(self) -> dict:
-        return dict(self.unwrapped.hull_tally)
 
     def judge(self, success: bool, info: dict) -> str:
         if success:

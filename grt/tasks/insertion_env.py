@@ -142,6 +142,8 @@ class InsertEnv(TaskEnv):
         sim_freq, control_freq: physics and control rates (Hz).
     """
 
+    object_word = "plug"
+
     SUPPORTED_ROBOTS = ["panda_insert"]
     agent: PandaInsert
     max_dense_reward = 2.25  # see compute_dense_reward
@@ -182,32 +184,14 @@ class InsertEnv(TaskEnv):
         """The socket (built from the nominal plug); takes effect at the next reconfigure."""
         self.socket = socket
 
-    def set_object(self, mesh: trimesh.Trimesh, parts: list[np.ndarray]) -> None:
-        """The next plug of every sub-scene (meters, tip at z = 0, connector down) and its convex parts ``(K, 3)``."""
-        self.set_objects([(mesh, parts)])
-
     def set_objects(self, objects: list[tuple[trimesh.Trimesh, list[np.ndarray]]],
                     assignment: list[int] | None = None) -> None:
-        """The next plugs: sub-scene ``i`` holds ``objects[assignment[i]]`` (``None``: every one the first);
-        takes effect at the next reconfigure."""
-        if any(len(parts) == 0 for _, parts in objects):
-            raise ValueError("a plug needs at least one convex collision part")
-        self.plug_meshes = [mesh for mesh, _ in objects]
-        self.plug_parts_of = [[np.asarray(p, np.float64).reshape(-1, 3) for p in parts] for _, parts in objects]
-        self.plug_mesh, self.plug_parts = self.plug_meshes[0], self.plug_parts_of[0]  # the first (one env: the) plug
+        """The next plugs (meters, tip at z = 0, connector down): see :meth:`TaskEnv.set_objects`; each plug's
+        surface cloud and grip half-width are made here, once."""
+        super().set_objects(objects, assignment)
         self._plug_clouds = np.stack([self._surface_cloud(mesh, self.cloud_points // 2, seed=1)
-                                      for mesh in self.plug_meshes])
-        self._grip_half_widths = np.array([grip_half_width(mesh, self.grip_height) for mesh in self.plug_meshes])
-        self._assignment = None if assignment is None else np.asarray(assignment, np.int64)
-
-    def object_of_env(self) -> np.ndarray:
-        """``(num_envs,)`` index of each sub-scene's plug in the objects given to :meth:`set_objects`."""
-        if self._assignment is None:
-            return np.zeros(self.num_envs, np.int64)
-        if len(self._assignment) != self.num_envs:
-            raise ValueError(f"set_objects gave {len(self._assignment)} sub-scene assignments for "
-                             f"{self.num_envs} sub-scenes")
-        return self._assignment
+                                      for mesh in self.object_meshes])
+        self._grip_half_widths = np.array([grip_half_width(mesh, self.grip_height) for mesh in self.object_meshes])
 
     def _surface_cloud(self, mesh: trimesh.Trimesh, k: int, seed: int) -> np.ndarray:
         if k <= 0:
@@ -232,7 +216,7 @@ class InsertEnv(TaskEnv):
         builder.initial_pose = sapien.Pose(p=[0.0, 0.0, 0.02])
         self.socket_actor = builder.build_kinematic(name="grt_socket")
         self._env_object = self.object_of_env()
-        plugs = [build_object_actor(self.scene, self.plug_meshes[j], self.plug_parts_of[j], f"grt_plug_{i}",
+        plugs = [build_object_actor(self.scene, self.object_meshes[j], self.object_parts_of[j], f"grt_plug_{i}",
                                     friction=self.plug_friction, density=self.plug_density, initial_z=0.3,
                                     scene_idxs=[i], tally=self.hull_tally)
                  for i, j in enumerate(self._env_object)]

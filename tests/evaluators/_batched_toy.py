@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from grt.policies.base import BatchedPolicy
-from grt.tasks.base import COMMON_MODES, EpisodeSession
-from grt.tasks.batched import BatchedEpisodes
+from grt.tasks.base import COMMON_MODES
+from grt.tasks.batched import EpisodeSession
 
 
 class Greedy(BatchedPolicy):
@@ -31,7 +31,7 @@ class Greedy(BatchedPolicy):
         return np.clip((state[:, 2:] - state[:, :2]) / 0.1, -1.0, 1.0).astype(np.float32)
 
 
-class PointMassBatch(BatchedEpisodes, EpisodeSession):
+class PointMassBatch(EpisodeSession):
     task_name = "point_mass"
     obs_spec = {"state": (4,)}
     num_actions = 2

@@ -3,7 +3,8 @@
 The "trial" drops seeded random points into the object's bounding box and asks whether enough of
 them land inside the convex collision parts: it depends on the mesh, the parts and the seed only.
 Switches make it misbehave on purpose: raise on a seed, kill its own process on a seed (always, or
-only the first time, remembered through a marker file), hang on a seed (likewise), or fail to build. ``continuous=True`` scores a
+only the first time, remembered through a marker file), hang on a seed (likewise), or fail to build. Its stock
+object (a candidate ``None``, as a ManiSkill task's own actor) is :func:`stock_box`. ``continuous=True`` scores a
 trial by a length in meters (the filled fraction times the object's height) instead of 0/1.
 """
 
@@ -14,9 +15,17 @@ import time
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from scipy.spatial import ConvexHull
 
-from grt.tasks.base import TaskSession, TrialOutcome
+from grt.tasks.base import TaskSession
+
+
+def stock_box() -> trimesh.Trimesh:
+    """The toy task's own object: a 6 x 3 x 5 cm box resting on z = 0."""
+    box = trimesh.creation.box((0.06, 0.03, 0.05))
+    box.apply_translation([0.0, 0.0, 0.025])
+    return box
 
 
 class ToyPolicy:
@@ -41,13 +50,18 @@ class ToySession(TaskSession):
         self.equations: list[np.ndarray] = []
         self.bounds = np.zeros((2, 3))
 
-    def load_object(self, mesh, parts) -> None:
+    def load_objects(self, objects, assignment) -> None:
+        mesh, parts = objects[assignment[0]]
+        if mesh is None:  # the task's own (stock) object, as a ManiSkill task's actor
+            mesh = stock_box()
+            parts = [np.asarray(mesh.vertices)]
         if not parts:
             raise ValueError("no parts")
         self.equations = [ConvexHull(p).equations for p in parts]
         self.bounds = np.asarray(mesh.bounds)
 
-    def run_trial(self, seed: int) -> TrialOutcome:
+    def _play(self, episodes) -> None:
+        seed = episodes.seeds[0]
         if seed == self.crash_on and (self.marker is None or not Path(self.marker).exists()):
             if self.marker is not None:
                 Path(self.marker).touch()
@@ -69,7 +83,7 @@ class ToySession(TaskSession):
         ok = fill >= bar
         self.last = f"seed {seed}: fill {fill:.3f}"
         score = fill * float(self.bounds[1, 2] - self.bounds[0, 2]) if self.continuous else float(ok)
-        return TrialOutcome(seed, score, ok, "success" if ok else "missed", {"fill": fill, "pid": os.getpid()})
+        episodes.end(0, "success" if ok else "missed", score, {"fill": fill, "pid": os.getpid()})
 
     def render(self, path: str) -> None:
         """The 'picture' of the last trial: a text file (the protocol only needs ``render(path)``)."""

@@ -39,24 +39,25 @@ needs_cuda = pytest.mark.skipif(not _cuda(), reason="no CUDA device: torch.cuda.
 ])
 def test_the_population_split_lays_every_pair_out_once_in_equal_batches(candidates, trials, max_envs, sizes):
     seeds = list(range(100, 100 + trials))
-    batches = plan_batches(list(range(candidates)), seeds, max_envs)
+    pairs = [(c, s) for c in range(candidates) for s in seeds]
+    batches = plan_batches(pairs, max_envs)
     assert [len(b) for b in batches] == sizes and all(len(b) <= max_envs for b in batches)
-    real = [(c, s) for b in batches for c, s in zip(b.candidates[:b.real], b.seeds[:b.real], strict=True)]
-    assert real == [(c, s) for c in range(candidates) for s in seeds]  # each pair once, candidate by candidate
+    real = [(c, s) for b in batches for c, s in zip(b.jobs[:b.real], b.seeds[:b.real], strict=True)]
+    assert real == pairs  # each pair once, in order
     for b in batches:  # padding repeats the batch's last real pair
-        assert set(zip(b.candidates[b.real:], b.seeds[b.real:], strict=True)) <= {(b.candidates[b.real - 1],
-                                                                                    b.seeds[b.real - 1])}
+        assert set(zip(b.jobs[b.real:], b.seeds[b.real:], strict=True)) <= {(b.jobs[b.real - 1], b.seeds[b.real - 1])}
 
 
 def test_a_batch_loads_each_candidate_once_and_maps_every_sub_scene_to_it():
-    first, second = plan_batches([4, 7, 9], [1, 2], 4)  # six pairs: two batches of three
+    pairs = [(c, s) for c in (4, 7, 9) for s in (1, 2)]  # six pairs: two batches of three
+    first, second = plan_batches(pairs, 4)
     order, assignment = objects_of(first)  # (4, 1) (4, 2) (7, 1)
     assert order == [4, 7] and assignment == [0, 0, 1] and second.seeds == (2, 1, 2)
     order, assignment = objects_of(second)  # (7, 2) (9, 1) (9, 2)
-    assert order == [7, 9] and [order[a] for a in assignment] == list(second.candidates)
+    assert order == [7, 9] and [order[a] for a in assignment] == list(second.jobs)
     with pytest.raises(ValueError, match="max_envs"):
-        plan_batches([0], [1], 0)
-    assert plan_batches([], [1, 2], 8) == []
+        plan_batches([(0, 1)], 0)
+    assert plan_batches([], 8) == []
 
 
 # --------------------------------------------------------------------------- the batched protocol (toy)
@@ -158,6 +159,37 @@ def test_the_evaluator_maps_candidates_and_seeds_to_sub_scenes_and_back(toy):
     assert len({r.score for r in results}) > 1  # the objects matter
 
 
+class StopWhenAllSucceed:
+    """A race that stops a candidate at a look when every trial so far succeeded (the evaluator's side only)."""
+
+    at = (2, 4)
+
+    def stop(self, scores, errors=0):
+        return {"stopped": "test", "n": len(scores)} if len(scores) in self.at and min(scores) == 1.0 else None
+
+
+def test_a_gpu_evaluation_races_its_candidates_in_rounds_of_sub_scenes(toy):
+    """Racing on evaluator=gpu: each round of the candidates still running is one set of batches; a stopped
+    candidate takes no more sub-scenes, and the trials it ran are its first seeds' outcomes, as without racing."""
+    task = {"name": "point_mass", "session": {"_target_": "_batched_toy.PointMassBatch", "give_up": 1.5}}
+    policy = {"_target_": "_batched_toy.Greedy"}
+    meshes = [_box(0.06), _box(0.3), _box(0.12)]
+    parts = [[np.asarray(m.vertices)] for m in meshes]
+    with GpuEvaluator(task, policy, collision="coacd", backend="physx_cpu", max_envs=8, progress=False) as ev:
+        full = ev.evaluate(meshes, SEEDS, parts=parts)
+        before = ev.backend_info()
+        raced = ev.evaluate_each(meshes, SEEDS, lambda i, r: None, race=StopWhenAllSucceed())
+        after = ev.backend_info()
+    ran = [r.info["race"]["trials"] for r in raced]
+    assert [r.info["race"]["stopped"] for r in raced] == ["test" if n < len(SEEDS) else None for n in ran]
+    assert 2 in ran and len(SEEDS) in ran, ran  # one stopped after its first round, one ran every trial
+    for whole, part, n in zip(full, raced, ran, strict=True):
+        assert [t.seed for t in part.trials] == SEEDS[:n]
+        assert all(_same(a, b) for a, b in zip(part.trials, whole.trials, strict=False))
+    assert after["sub_scenes"] - before["sub_scenes"] == sum(ran)  # a stopped candidate took no more sub-scenes
+    assert after["batches"] - before["batches"] == 3  # the rounds ending at seeds 2, 4 and 5, one batch each
+
+
 # --------------------------------------------------------------------------- refusals
 def test_tasks_and_policies_that_cannot_run_batched_are_refused_in_one_line():
     insertion = {"name": "insertion", "session": {"_target_": "grt.tasks.insertion.InsertionSession"}}
@@ -236,6 +268,29 @@ def test_on_physx_cpu_the_gpu_path_scores_each_candidate_as_its_own_trials_do():
     assert results[0].success_rate == 1.0 and results[1].success_rate == 0.0, [r.outcomes for r in results]
 
 
+@pytest.mark.sim
+def test_a_red_team_run_on_evaluator_gpu_races_its_trials_on_the_cpu(tmp_path):
+    """budget.racing=true with evaluator=gpu (physx_cpu, one sub-scene): candidates stop after their first round,
+    and summary.json counts what racing saved (no 'nothing was raced' note). With a crash margin of 0.99 only a
+    candidate failing every trial would be a CrashShape: one success in its first round stops it."""
+    import json
+
+    from grt.runner import run
+    from tests.runner.conftest import compose_run
+
+    cfg = compose_run(["task=insertion", "policy=insertion_servo", "evaluator=gpu", "evaluator.backend=physx_cpu",
+                       "evaluator.max_envs=1", "budget=smoke", "budget.trials=4", "budget.racing=true",
+                       "budget.race_rounds=2", "task.crash_margin=0.99", "task.session.max_steps=40",
+                       "task.nominal_floor=null", f"paths.output_dir={tmp_path}"])
+    run(cfg)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    records = [json.loads(line) for line in (tmp_path / "journal.jsonl").read_text().splitlines()]
+    raced = [r for r in records if r["iteration"] > 0 and r.get("race")]
+    assert summary["evaluator"]["backend"] == "gpu" and summary["racing"]["stopped"] >= 1, summary.get("racing")
+    assert all(len(r["trials"]) == (2 if r["race"]["stopped"] else 4) for r in raced)
+    assert "nothing was raced" not in summary.get("note", "")
+
+
 @gpu
 @needs_cuda
 def test_on_the_gpu_a_population_runs_in_sub_scenes_with_its_own_plugs():
@@ -264,6 +319,22 @@ def test_on_the_gpu_a_population_larger_than_max_envs_is_split_and_the_env_rebui
     assert results[0].success_rate > results[1].success_rate, [r.outcomes for r in results]
 
 
+@gpu
+@needs_cuda
+def test_on_the_gpu_a_population_races_in_rounds_of_sub_scenes():
+    """physx_cuda, 2 plugs x 8 seeds, racing: a candidate whose first trials all insert stops at a look and takes
+    no more sub-scenes; the others run their next rounds as the next batches."""
+    meshes, parts = _plugs()
+    seeds = list(range(40, 48))
+    with GpuEvaluator(INSERTION, SERVO, nominal=meshes[0], backend="physx_cuda", max_envs=16, progress=False) as ev:
+        results = ev.evaluate_each(meshes, seeds, lambda i, r: None, race=StopWhenAllSucceed())
+        info = ev.backend_info()
+    ran = [r.info["race"]["trials"] for r in results]
+    rounds = [2, 4, 8].index(max(ran)) + 1  # one batch per round the longest-running candidate ran
+    assert info["sub_scenes"] == sum(ran) and info["batches"] == rounds, (ran, info)
+    assert ran[0] in StopWhenAllSucceed.at, ([t.mode for t in results[0].trials], ran)  # the nominal plug inserts
+
+
 def test_a_cpu_run_is_not_resumed_on_the_gpu_nor_the_reverse(tmp_path):
     """One journal, one physics: a run scored by CPU workers goes on with CPU workers (or evaluator=gpu on
     physx_cpu, whose trials are theirs bit for bit), not on the GPU."""
@@ -283,8 +354,8 @@ def test_a_cpu_run_is_not_resumed_on_the_gpu_nor_the_reverse(tmp_path):
 
 @pytest.mark.sim
 def test_the_gpu_path_drives_a_stock_maniskill_task_as_its_session_does(tmp_path):
-    """Any ManiSkill task (issue 37's session) runs batched too: PushCube-v1 with its expert, through
-    evaluator=gpu on physx_cpu, gives the session's own trial."""
+    """Any ManiSkill task runs batched too: PushCube-v1 with its expert, through evaluator=gpu on physx_cpu,
+    gives the session's own trial; a candidate None runs the env's stock actor."""
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
 
@@ -301,5 +372,6 @@ def test_the_gpu_path_drives_a_stock_maniskill_task_as_its_session_does(tmp_path
     finally:
         session.close()
     with GpuEvaluator(task, policy, collision="coacd", backend="physx_cpu", max_envs=1, progress=False) as ev:
-        result = ev.evaluate([cube], [3], parts=[parts])[0]
+        result, stock = ev.evaluate([cube, None], [3], parts=[parts, None])  # None: the stock actor
     assert _same(result.trials[0], alone) and alone.mode == "success", (result.trials, alone)
+    assert stock.trials[0].mode == "success" and stock.info["parts"] == 0, stock.trials

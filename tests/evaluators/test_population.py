@@ -8,6 +8,7 @@ tests/runner/test_population_batching.py.
 from __future__ import annotations
 
 from grt.evaluators.sim import SimEvaluator
+from tests.evaluators._toy_session import stock_box
 
 
 def _modes(result):
@@ -24,6 +25,10 @@ def test_each_mesh_is_called_back_as_its_trials_finish(toy_configs, toy_referenc
         ev.start(say=None)
         results = ev.evaluate([u_mesh, u_deformed, u_mesh], seeds,
                               on_result=lambda i, r: called.append((i, ev.pool.trials, r)))
+        # a candidate None is the task's own stock object (a ManiSkill task's actor: the swap check's reference)
+        box = stock_box()
+        stock, same = ev.evaluate([None, box], seeds, parts=[None, [box.vertices]])
+    assert _modes(stock) == _modes(same) and stock.info["parts"] == 0 and stock.sim_errors == 0
     assert [(i, done) for i, done, _ in called] == [(0, 6), (1, 12), (2, 18)]
     assert all(r is results[i] for i, _, r in called)
     nominal, deformed = toy_reference["results"]

@@ -47,7 +47,7 @@ def test_workers_run_the_policys_numpy_and_exchange_jobs_and_outcomes(monkeypatc
     outcomes.sort(key=lambda o: o.seed)
     assert [o.info["numpy"] for o in outcomes] == ["1.26.4", "1.26.4"]
     assert np.__version__.startswith("2.")  # ... and this process kept its own
-    assert [o.info["total"] for o in outcomes] == pytest.approx([expect, expect], rel=1e-12)
+    assert [float(o.info["total"]) for o in outcomes] == pytest.approx([expect, expect], rel=1e-12)
     assert [o.score for o in outcomes] == [0.2, pytest.approx(0.3)]
     np.testing.assert_array_equal(outcomes[1].info["array"], [0.0, 3.0, 6.0])
     assert outcomes[0].info["ints"].dtype == np.int32

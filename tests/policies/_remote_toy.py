@@ -1,7 +1,7 @@
 """A cheap closed-loop task and policy for the remote-policy tests (imported by spawned workers and by the
 server script ``_serve_toy.py``), and two policies whose output the task cannot use.
 
-:class:`PointMassSession` is a real :class:`grt.tasks.base.EpisodeSession` (its ``run_trial`` records
+:class:`PointMassSession` is a real :class:`grt.tasks.batched.EpisodeSession` (its ``run_trial`` records
 failures as the simulator's tasks do): a point starts and aims at seeded positions, each action moves it
 by at most 0.1 per axis; it succeeds within 0.05 of the goal before ``max_steps`` (far goals time out).
 """
@@ -15,7 +15,8 @@ import numpy as np
 
 from grt.evaluators.base import CandidateResult, Evaluator
 from grt.policies.base import BatchedPolicy
-from grt.tasks.base import COMMON_MODES, EpisodeSession
+from grt.tasks.base import COMMON_MODES
+from grt.tasks.batched import EpisodeSession
 
 
 class GreedyPolicy(BatchedPolicy):
@@ -75,20 +76,20 @@ class PointMassSession(EpisodeSession):
         super().__init__(policy, max_steps, rebuild_each_trial)
         self.scale = 1.0
 
-    def load_object(self, mesh, parts) -> None:
-        self.scale = float(np.max(mesh.extents)) / 0.06  # the object matters a little
+    def load_objects(self, objects, assignment) -> None:
+        self.scale = float(np.max(objects[assignment[0]][0].extents)) / 0.06  # the object matters a little
 
-    def _reset_env(self, seed: int, rebuild: bool) -> None:
-        rng = np.random.default_rng(seed)
+    def _reset_batch(self, seeds, rebuild: bool) -> None:
+        rng = np.random.default_rng(seeds[0])
         self.pos, self.goal = rng.uniform(-0.6, 0.6, 2) * self.scale, rng.uniform(-0.6, 0.6, 2)
 
-    def _step_env(self, action):
-        self.pos = self.pos + 0.1 * np.asarray(action, np.float64)
-        distance = float(np.linalg.norm(self.pos - self.goal))
+    def _step_batch(self, actions):
+        self.pos = self.pos + 0.1 * np.asarray(actions[0], np.float64)
+        distance = np.array([np.linalg.norm(self.pos - self.goal)])
         return -distance, distance < 0.05, {"distance": distance}
 
-    def observe(self):
-        return {"state": np.concatenate([self.pos, self.goal]).astype(np.float32)}
+    def observe_batch(self):
+        return {"state": np.concatenate([self.pos, self.goal]).astype(np.float32)[None]}
 
     def judge(self, success: bool, info: dict) -> str:
         return "success" if success else "timeout"

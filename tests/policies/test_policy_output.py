@@ -35,7 +35,7 @@ def can():
 
 
 @pytest.mark.parametrize(("policy", "message"), [
-    (NaNPolicy(), "policy _remote_toy.NaNPolicy returned a non-finite action [[nan, nan]]"),
+    (NaNPolicy(), "policy _remote_toy.NaNPolicy returned a non-finite action [nan, nan]"),
     (WrongShapePolicy(), "policy _remote_toy.WrongShapePolicy returned actions of shape (1, 3); the task takes "
                          "(1, 2): fix the policy's act()")])
 def test_unusable_closed_loop_output_is_a_sim_error_naming_the_policy(policy, message, can):

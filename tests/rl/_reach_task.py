@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from grt.tasks.base import EpisodeSession
+from grt.tasks.batched import EpisodeSession
 
 
 class ReachSession(EpisodeSession):
@@ -23,21 +23,21 @@ class ReachSession(EpisodeSession):
         self.scale, self.x, self.goal = 0.1, 0.0, 0.0
         self.loads = 0
 
-    def load_object(self, mesh, parts) -> None:
-        self.scale = 0.1 * float(np.ptp(np.asarray(mesh.vertices)[:, 0])) / 0.06
+    def load_objects(self, objects, assignment) -> None:
+        self.scale = 0.1 * float(np.ptp(np.asarray(objects[assignment[0]][0].vertices)[:, 0])) / 0.06
         self.loads += 1
 
-    def _reset_env(self, seed: int, rebuild: bool) -> None:
-        rng = np.random.default_rng(seed)
+    def _reset_batch(self, seeds, rebuild: bool) -> None:
+        rng = np.random.default_rng(seeds[0])
         self.x, self.goal = 0.0, float(rng.uniform(-1.0, 1.0))
 
-    def _step_env(self, action: np.ndarray):
-        self.x += self.scale * float(action[0])
+    def _step_batch(self, actions: np.ndarray):
+        self.x += self.scale * float(actions[0, 0])
         err = abs(self.goal - self.x)
-        return -err, err < 0.05, {"error": err}
+        return np.array([-err]), np.array([err < 0.05]), {"distance": np.array([err])}
 
-    def observe(self) -> dict[str, np.ndarray]:
-        return {"state": np.array([self.x, self.goal - self.x], np.float32)}
+    def observe_batch(self) -> dict[str, np.ndarray]:
+        return {"state": np.array([[self.x, self.goal - self.x]], np.float32)}
 
     def judge(self, success: bool, info: dict) -> str:
         return "success" if success else "timeout"

@@ -40,7 +40,7 @@ def test_a_user_plug_session_builds_its_env_around_the_users_plug(tmp_path):
     path = str(_tall_plug(tmp_path))
     session = InsertionSession(None, socket_object=path, head_length=0.018, grip_height=0.05, cloud_points=0)
     try:  # the env's first object is the user's plug: the 42 mm built-in would have no grip at 50 mm
-        assert session.unwrapped.plug_mesh.extents[2] == pytest.approx(0.063, abs=1e-3)
+        assert session.unwrapped.object_meshes[0].extents[2] == pytest.approx(0.063, abs=1e-3)
     finally:
         session.close()
 

@@ -47,7 +47,6 @@ import importlib
 import json
 import logging
 import re
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -55,8 +54,8 @@ import numpy as np
 import trimesh
 
 from grt.config import at_least
-from grt.tasks.base import COMMON_MODES, EpisodeSession, TaskInputError, TrialOutcome
-from grt.tasks.batched import BatchedEpisodes, Objects
+from grt.tasks.base import COMMON_MODES, Episodes, TaskInputError
+from grt.tasks.batched import EpisodeSession, Objects, info_at, to_numpy
 from grt.tasks.maniskill.driver import StepLimit, StepRecorder
 from grt.tasks.maniskill.geometry import ActorFrame, check_grt_frame
 from grt.tasks.maniskill.make import make_env
@@ -134,7 +133,7 @@ def _resolve(path: str | None):
     return found
 
 
-class ManiSkillSession(BatchedEpisodes, EpisodeSession):
+class ManiSkillSession(EpisodeSession):
     """Episodes of one policy on one registered ManiSkill env, one actor swapped for the candidate.
 
     Args:
@@ -208,8 +207,8 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
         space = self.env.action_space
         self.action_low, self.action_high = np.asarray(space.low, np.float32), np.asarray(space.high, np.float32)
         self.num_actions = int(np.prod(space.shape))
-        self._object_changed, self._obs = False, None
-        self._reset_env(0, False)
+        self._object_changed = False
+        self._reset_batch([0] * self.num_envs, False)
         self.obs_spec = {k: tuple(v.shape) for k, v in self.observe().items()}
         self._check_info_keys()
         self._check_policy()
@@ -275,47 +274,37 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
         return probe(session_kwargs).nominal.copy()
 
     # ------------------------------------------------------------------ objects
-    def load_object(self, mesh: trimesh.Trimesh | None, parts: list[np.ndarray] | None) -> None:
-        """The candidate in GRT's frame (meters) and its convex parts; ``None``: the stock actor (calibration)."""
-        if mesh is None:
-            self.swap.set_candidates(None)
-        else:
-            if not parts:
-                raise ValueError("a candidate needs at least one convex collision part")
-            actor_mesh = mesh.copy()
-            actor_mesh.vertices = self.frame.to_actor(mesh.vertices)
-            self.swap.set_candidates(Candidate(actor_mesh, [self.frame.to_actor(p) for p in parts]))
-        self._object_changed = True
-
     def load_objects(self, objects: Objects, assignment) -> None:
-        """Sub-scene ``i`` holds ``objects[assignment[i]]`` (GRT's frame, meters; see :meth:`load_object`)."""
+        """Sub-scene ``i`` holds ``objects[assignment[i]]``: a candidate in GRT's frame (meters) and its convex
+        parts, or ``(None, None)``: the stock actor (calibration, the swap check)."""
         cands = []
         for mesh, parts in objects:
+            if mesh is None:
+                cands.append(None)
+                continue
+            if not parts:
+                raise ValueError("a candidate needs at least one convex collision part")
             actor_mesh = mesh.copy()
             actor_mesh.vertices = self.frame.to_actor(mesh.vertices)
             cands.append(Candidate(actor_mesh, [self.frame.to_actor(p) for p in parts]))
         self.swap.set_candidates({i: cands[int(a)] for i, a in enumerate(assignment)})
         self._object_changed = True
 
-    # ------------------------------------------------------------------ BatchedEpisodes hooks (evaluator=gpu)
-    def _reset_batch(self, seeds, rebuild: bool) -> None:
-        self._obs, _ = self.env.reset(seed=[int(s) for s in seeds],
-                                      options=dict(reconfigure=bool(rebuild or self._object_changed)))
-        self._object_changed = False
-
+    # ------------------------------------------------------------------ EpisodeSession hooks
     def _step_batch(self, actions: np.ndarray):
         self._obs, reward, _, _, info = self.env.step(actions)
         out = self.info_batch(info)
-        return np.asarray(_numpy(reward)).reshape(self.num_envs), out["success"].astype(bool), out
+        return to_numpy(reward).reshape(self.num_envs), out["success"].astype(bool), out
 
     def clip_actions(self, actions: np.ndarray) -> np.ndarray:
         return np.clip(actions, self.action_low, self.action_high)
 
     def check_batch(self, info: dict[str, np.ndarray]) -> list[str | None]:
-        """As :meth:`_check`, per sub-scene: a non-finite state, the swapped actor non-finite or run away."""
+        """A non-finite state (:meth:`EpisodeSession.check_batch`), then the swapped actor non-finite or run away,
+        per sub-scene."""
         errors = super().check_batch(info)
         for b in self.swap.builds:
-            p = np.asarray(_numpy(b.actor.pose.p), np.float64).reshape(-1, 3)
+            p = to_numpy(b.actor.pose.p).astype(np.float64).reshape(-1, 3)
             far = np.linalg.norm(p, axis=-1)
             scenes = b.scene_idxs if len(b.scene_idxs) == len(p) else range(len(p))
             for k, i in enumerate(scenes):
@@ -325,29 +314,9 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
                     errors[i] = f"RuntimeError: the actor {b.name!r} ran away ({far[k]:.1f} m from the origin)"
         return errors
 
-    # ------------------------------------------------------------------ EpisodeSession hooks
-    def _reset_env(self, seed: int, rebuild: bool) -> None:
-        self._obs, _ = self.env.reset(seed=int(seed), options=dict(reconfigure=bool(rebuild or self._object_changed)))
-        self._object_changed = False
-
-    def _step_env(self, action: np.ndarray) -> tuple[float, bool, dict]:
-        self._obs, reward, _, _, info = self.env.step(action[None])
-        return float(np.asarray(reward).reshape(-1)[0]), bool(self._flag(info, "success")), self._info(info)
-
-    def step(self, action: np.ndarray):
-        action = np.clip(np.asarray(action, np.float32).reshape(self.num_actions), self.action_low, self.action_high)
-        reward, success, info = self._step_env(action)
-        self.steps += 1
-        info["success"] = bool(success)
-        return self.observe(), float(reward), bool(success), self.steps >= self.max_steps, info
-
     def observe_batch(self) -> dict[str, np.ndarray]:
         """The env's last observation (of the last reset or step) as groups ``{name: (num_envs, ...)}``."""
-        obs = self._obs
-        return {k: np.asarray(_numpy(v), np.float32) for k, v in _leaves(obs)}
-
-    def observe(self) -> dict[str, np.ndarray]:
-        return {k: v[0] for k, v in self.observe_batch().items()}
+        return {k: to_numpy(v).astype(np.float32) for k, v in _leaves(self._obs)}
 
     def judge(self, success: bool, info: dict) -> str:
         if success:
@@ -362,12 +331,9 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
             return float(success)
         return float(info[self.score_key])
 
-    def _flag(self, info: dict, key: str):
-        return np.asarray(_numpy(info[key])).reshape(-1)[0]
-
     def info_batch(self, info: dict) -> dict[str, np.ndarray]:
         """What the judge reads of the env's info, batched: ``{key: (num_envs,)}`` for success, the failure
-        flags and the score key (bool or float arrays; the GPU evaluator judges every sub-scene from it).
+        flags and the score key (bool or float arrays).
 
         Raises:
             KeyError: a key the env's info does not have (names the keys it has).
@@ -380,52 +346,34 @@ class ManiSkillSession(BatchedEpisodes, EpisodeSession):
             if key not in info:
                 raise KeyError(f"the env's info has no {key!r} (task.session.failure_flags / task.session.score); it has "
                                f"{', '.join(sorted(info))}")
-            out[key] = np.asarray(_numpy(info[key])).reshape(self.unwrapped.num_envs, -1)[:, 0]
+            out[key] = to_numpy(info[key]).reshape(self.unwrapped.num_envs, -1)[:, 0]
         return out
 
-    def judge_batch(self, success: np.ndarray, info: dict[str, np.ndarray]) -> list[str]:
-        """:meth:`judge` of every sub-scene: ``success`` ``(num_envs,)``, ``info`` from :meth:`info_batch`."""
-        return [self.judge(bool(success[i]), {k: v[i] for k, v in info.items()}) for i in range(len(success))]
-
-    def _info(self, info: dict) -> dict:
-        """The trial's record of one step (sub-scene 0): success, the failure flags and the score key."""
-        return {k: bool(v[0]) if v.dtype == bool else float(v[0]) for k, v in self.info_batch(info).items()}
-
-    def _check(self, info: dict) -> None:
-        super()._check(info)
-        for b in self.swap.builds:
-            p = np.asarray(_numpy(b.actor.pose.p), np.float64)
-            if not np.isfinite(p).all():
-                raise FloatingPointError(f"the actor {b.name!r} has a non-finite pose")
-            if np.linalg.norm(p, axis=-1).max() > RUNAWAY_M:
-                raise RuntimeError(f"the actor {b.name!r} ran away ({np.linalg.norm(p, axis=-1).max():.1f} m from the origin)")
-
     # ------------------------------------------------------------------ evaluation
-    def run_trial(self, seed: int) -> TrialOutcome:
+    def _play(self, episodes: Episodes) -> None:
         if callable(getattr(self.policy, "solve", None)):
-            return self._driven_trial(int(seed))
-        return super().run_trial(seed)
+            self._drive(episodes)
+        else:
+            super()._play(episodes)
 
-    def _driven_trial(self, seed: int) -> TrialOutcome:
-        """One trial of a policy that drives the env itself (see the module docstring)."""
-        start = time.perf_counter()
+    def _drive(self, episodes: Episodes) -> None:
+        """One episode of a policy that drives the env itself (see the module docstring)."""
+        if self.num_envs != 1:
+            raise ValueError(f"an env-driving policy runs one sub-scene per env, this session has {self.num_envs}")
+        seed = episodes.seeds[0]
+        self._reset_batch([seed], self.rebuild_each_trial)
+        recorder = StepRecorder(self.env, self, self.driver_step_limit)
         try:
-            self._reset_env(seed, self.rebuild_each_trial)
-            recorder = StepRecorder(self.env, self, self.driver_step_limit)
             with contextlib.suppress(StepLimit):
                 self.policy.solve(recorder, seed=seed)
-            info = recorder.last or self._info(self.unwrapped.get_info())
-            success = recorder.success or bool(info["success"])
-            self.steps = recorder.steps
-            mode, score = self.judge(success, info), self.score(success, info)
-        except Exception as err:  # physics failures must not pass silently
-            mode, score, success, info = "sim_error", 0.0, False, {"error": f"{type(err).__name__}: {err}"}
-        info = {**info, "steps": self.steps, "wall_s": time.perf_counter() - start}
-        return TrialOutcome(seed=seed, score=float(score), success=mode == "success", mode=mode, info=info)
-
-
-def _numpy(value):
-    return value.detach().cpu().numpy() if hasattr(value, "detach") else np.asarray(value)
+        finally:
+            episodes.steps[0] = self.steps = recorder.steps
+        if recorder.error is not None:
+            episodes.fail(0, recorder.error)
+            return
+        state = recorder.last or info_at(self.info_batch(self.unwrapped.get_info()), 0)
+        success = recorder.success or bool(state["success"])
+        episodes.end(0, self.judge(success, state), self.score(success, state), state)
 
 
 def _leaves(obs, prefix: str = ""):
