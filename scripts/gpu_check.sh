@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The GPU check of evaluator=gpu as ONE prepared run, 8.5 minutes at most, every figure to $OUT:
-#   1. the tests marked gpu (tests/evaluators/test_gpu.py);
-#   2. insertion_state's nominal success in GPU sub-scenes (128 trials) against the CPU worker pool's (64);
+#   1. the tests marked gpu (tests/evaluators/test_gpu.py: a population in sub-scenes, a split population,
+#      racing in rounds of sub-scenes);
+#   2. insertion_state's nominal success in GPU sub-scenes (128 trials) against the CPU worker pool's (64), each
+#      with its 95% interval;
 #   3. trials/s at 512 and 2048 sub-scenes, the CPU pool's beside it (same machine, same run);
 #   4. the paper's insertion protocol (10 x 10 x 128, budget=paper) as one red-team run's wall time;
 #   then gpu_check.png from the JSONs. A step that fails or runs out of time is recorded and the next runs.
