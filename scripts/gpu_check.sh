@@ -47,7 +47,7 @@ if [ "$BACKEND" = physx_cuda ]; then
     --workers "$WORKERS"
   step protocol 150 "$PY" -m grt.bench gpu protocol --out "$OUT" --timeout 140
 else  # the CPU fallback of each step, tiny: one sub-scene per env, a few trials, a smoke budget
-  step tests 200 "$PY" -m pytest -q -p no:cacheprovider tests/evaluators/test_gpu.py -rA
+  step tests 300 "$PY" -m pytest -q -p no:cacheprovider tests/evaluators/test_gpu.py -rA
   step nominal 300 "$PY" -m grt.bench gpu nominal --backend physx_cpu --out "$OUT" --trials 4 --cpu-trials 4 \
     --workers 1 --max-steps 40
   step throughput 300 "$PY" -m grt.bench gpu throughput --backend physx_cpu --out "$OUT" --sizes 4 --cpu-trials 4 \

@@ -123,16 +123,19 @@ def test_user_handle_mesh_needs_its_grasp_point(tmp_path):
 
 
 @pytest.mark.sim
-def test_the_shipped_ppo_policy_opens_the_nominal_drawer():
+def test_the_shipped_ppo_policy_opens_the_nominal_drawer(session):
     from pathlib import Path
 
     import grt
     from grt.policies.rsl_rl import RslRlPolicy
-    from grt.tasks.drawer import DrawerSession
 
     policy = RslRlPolicy(str(Path(grt.__file__).parent / "policies/checkpoints/drawer_state.pt"), task="drawer")
-    with DrawerSession(policy=policy, handle_object="drawer_handle") as s:
+    expert = session.policy
+    session.set_policy(policy)  # the module's session: checked against the task's observations as a new one is
+    try:
         mesh = get_object("drawer_handle")
-        s.load_object(mesh, _parts(mesh))
-        out = [s.run_trial(seed) for seed in (11, 12, 13)]
+        session.load_object(mesh, _parts(mesh))
+        out = [session.run_trial(seed) for seed in (11, 12, 13)]
+    finally:
+        session.set_policy(expert)
     assert all(o.mode == "success" and o.score >= 0.38 for o in out), out
