@@ -41,7 +41,14 @@ def confirm_seeds(seed: int, n: int, exclude: list[int]) -> list[int]:
     """
     if n < 1:
         raise ValueError(f"confirmation needs >= 1 trial, got {n}")
-    rng, taken, out = np.random.default_rng([seed, _STREAM]), set(exclude), []
+    return fresh_seeds(seed, n, exclude, _STREAM)
+
+
+def fresh_seeds(seed: int, n: int, exclude: list[int], stream: int) -> list[int]:
+    """``n`` distinct episode seeds of ``seed``'s ``stream`` (a constant of the caller: the confirmation's, the
+    shrink's, a profile's), none in ``exclude``; the seeds for ``n`` are the first ``n`` of those for any larger
+    count."""
+    rng, taken, out = np.random.default_rng([seed, stream]), set(exclude), []
     while len(out) < n:
         s = int(rng.integers(0, 2**31 - 1))
         if s not in taken:

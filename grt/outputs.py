@@ -25,6 +25,7 @@ from grt.geometry.quality import shape_change
 from grt.plan import RunPlan
 from grt.racing import search_figures, stopped
 from grt.scores import ScoreSpec, is_crash
+from grt.shrink import save_smallest
 
 
 def git_state() -> dict:
@@ -166,7 +167,9 @@ def shapes_readme(folder: str, unit: str | None, scale: float) -> str:
     lines = [f"{folder}/: the run's {what}, ranked (rank1 scored lowest).", "",
              "rank<r>_it<t>_c<i>.stl / .obj: in METERS (what GRT simulated; a slicer that assumes millimetres "
              "shows them 1000x too small: scale by 1000 or use the files below).",
-             "rank<r>_it<t>_c<i>_parts/: the convex collision parts the simulator used (meters)."]
+             "rank<r>_it<t>_c<i>_parts/: the convex collision parts the simulator used (meters).",
+             "rank<r>_it<t>_c<i>_smallest.stl / .obj: the CrashShape shrunk to the smallest scale of its "
+             "displacements whose drop is still confirmed (budget.shrink; meters; summary.json: smallest)."]
     if unit is not None:
         named = f"{unit}" if unit != "input" else f"the input's units, 1 unit = {scale:g} m"
         lines.insert(3, f"rank<r>_it<t>_c<i>_{unit}.stl / .obj: the same shapes in the input mesh's units "
@@ -187,11 +190,12 @@ def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
 
 
 def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s: float,
-                  confirmation: dict | None = None) -> dict:
+                  confirmation: dict | None = None, shrink: dict | None = None) -> dict:
     """Compute the paper's metrics from the journal and write every artifact of the run in ``plan.run_dir``.
 
     ``confirmation`` (:func:`grt.confirm.confirm`) adds ``confirm`` and ``confirmed_final_drop`` to the
-    summary and each CrashShape's fresh-episode score to ``shapes.png``.
+    summary and each CrashShape's fresh-episode score to ``shapes.png``; ``shrink`` (:func:`grt.shrink.shrink`)
+    adds ``shrink``, and to each shrunk CrashShape's entry ``smallest`` and its ``<stem>_smallest.stl``.
     """
     from grt.report.plots import plot_curve, plot_shapes
 
@@ -269,6 +273,9 @@ def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s
     for entry, mesh in zip(entries, meshes, strict=True):  # how far each is from the nominal (issue 33 §4)
         entry.update(shape_change(deformer.mesh, mesh))
     summary["crashshapes"] = entries if crashes else []
+    if shrink is not None and crashes:
+        save_smallest(run_dir, entries, shrink, deformer, {(r["iteration"], r["candidate"]): r["theta"] for r in best})
+        summary["shrink"] = shrink
     if not crashes:
         summary["best_candidates"] = entries
     if (run_dir / other).is_dir():  # a resumed run whose verdict changed: its other folder's shapes go

@@ -51,6 +51,8 @@ def at_least(low: int) -> Rule:
 POSITIVE = Rule("a finite number > 0", _is_positive)
 POSITIVE_OR_NULL = Rule("null (off) or a finite number > 0", lambda v: v is None or _is_positive(v))
 BOOLEAN = Rule("true or false", lambda v: isinstance(v, bool))
+FRACTION = Rule("a number strictly between 0 and 1",
+                lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < 1)
 RISK = Rule("a number in [0, 0.5) (0: only stop a candidate that cannot matter even if every trial left fails)",
             lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 0.5)
 
@@ -83,6 +85,12 @@ class Budget:
             ``top_k`` (:mod:`grt.racing`); off: every candidate runs every trial (as before racing existed).
         race_rounds: rounds of about equal size a raced candidate's trials run in (at most one per trial).
         race_alpha: the most probability with which racing stops a candidate that would have mattered.
+        shrink: after the confirmation, shrink each confirmed CrashShape to the smallest scale of its
+            displacements whose drop is still confirmed on fresh episodes (:mod:`grt.shrink`).
+        shrink_ratio: each level of the shrink scales the displacements by this much more (0.7: 0.7, 0.49,
+            ...); shrink_min_alpha: the smallest scale tried.
+        shrink_rounds: rounds of about equal size a level's episodes run in (its trials stop at the first
+            round after which its answer is clear).
     """
 
     population: int = _setting(10, at_least(1), "candidates per iteration")
@@ -103,6 +111,10 @@ class Budget:
     race_rounds: int = _setting(8, at_least(2), "rounds a raced candidate's trials run in")
     race_alpha: float = _setting(0.05, RISK, "the most probability of stopping a candidate that would have "
                                  "mattered")
+    shrink: bool = _setting(True, BOOLEAN, "shrink each confirmed CrashShape to its smallest confirmed scale")
+    shrink_ratio: float = _setting(0.7, FRACTION, "the scale of each shrink level relative to the one before")
+    shrink_min_alpha: float = _setting(0.05, FRACTION, "the smallest scale of a CrashShape the shrink tries")
+    shrink_rounds: int = _setting(8, at_least(1), "rounds a shrink level's episodes run in")
 
     @classmethod
     def of(cls, budget: Mapping) -> Budget:

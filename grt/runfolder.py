@@ -61,18 +61,20 @@ FORMAT = 2
 # Keys a resume may set (with what is under them): none changes the search (results are identical with any
 # number of workers; loggers, the collision cache and Hydra's own files only record; the nominal floor only
 # decides whether the run goes on after S0), so a resumed run stays the run its journal was written by.
+SHRINK_KEYS = ("budget.shrink", "budget.shrink_ratio", "budget.shrink_min_alpha", "budget.shrink_rounds")
 RESUME_FREE = ("budget.workers", "evaluator.workers", "logger", "paths.cache_dir", "hydra", "task.nominal_floor",
-               "budget.confirm_trials", "budget.videos", "report")
+               "budget.confirm_trials", "budget.videos", "report", *SHRINK_KEYS)
 # The parts of a resumed run's config taken from the command; all the rest is the run's saved config.
 FROM_COMMAND = ("budget.workers", "evaluator.workers", "evaluator.cache_dir", "logger", "paths",
-                "task.nominal_floor", "budget.confirm_trials", "budget.videos", "report")
+                "task.nominal_floor", "budget.confirm_trials", "budget.videos", "report", *SHRINK_KEYS)
 # The evaluator's keys that shape a trial's outcome (its collision geometry); every other evaluator key only
 # says where and how the trials run (evaluator=sim or ray, address, workers, timeouts), so a resume may
 # change them (results are identical on the pool and on Ray) and takes them from the command.
 EVALUATOR_RESULTS = ("collision", "coacd", "max_hull_vertices")
 # FROM_COMMAND keys a run saved before they existed takes from the command all the same: they only choose
-# what is made after the search (report.html's videos), never a result.
-AFTER_SEARCH = ("budget.videos", "report")
+# what is made after the search (report.html's videos, the shrink of confirmed CrashShapes), never a result
+# of the search.
+AFTER_SEARCH = ("budget.videos", "report", *SHRINK_KEYS)
 RUN_FOLDERS = "outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>"
 # Targets renamed since format 1: the evaluators package was ``grt.eval`` (the alias package is gone).
 RENAMED_TARGETS = {"grt.eval.evaluator.SimEvaluator": "grt.evaluators.sim.SimEvaluator"}

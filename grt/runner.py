@@ -5,7 +5,8 @@ the run folder and calls :func:`red_team`, the paper's flow in named steps: the 
 (:func:`prepare_object`), the run's classes (:func:`build_parts`), its record (:mod:`grt.runfolder`), the
 handles (:func:`select_handles`), the deformation model (:func:`make_deformer`), the search
 (:func:`search`, Algorithm 1 in :class:`grt.redteam.RedTeamLoop`), the confirmation of its CrashShapes on
-fresh episodes (:func:`confirm_shapes`, ``budget.confirm_trials`` > 0) and the outputs (:mod:`grt.outputs`,
+fresh episodes (:func:`confirm_shapes`, ``budget.confirm_trials`` > 0), the shrink of the confirmed ones to
+their smallest confirmed scale (:func:`shrink_shapes`, ``budget.shrink``) and the outputs (:mod:`grt.outputs`,
 :func:`report`). The command line (Hydra, ``resume=``, Ctrl-C, sweeps) is :mod:`grt.cli.run`'s.
 """
 
@@ -48,6 +49,7 @@ from grt.runfolder import (
 )
 from grt.scores import ScoreSpec, check_nominal_floor
 from grt.selectors.base import HandleSet
+from grt.shrink import ShrinkSettings, ShrinkShape, shrink, shrink_seeds
 from grt.targets import build
 from grt.tasks import check_fit, preflight, task_description, task_object
 
@@ -79,7 +81,7 @@ def run(cfg) -> dict:
 
 def red_team(plan: RunPlan) -> dict:
     """The run in ``plan.run_dir``, as the paper's flow: the nominal object, handles, the deformation model,
-    the search (Algorithm 1), the confirmation of its CrashShapes on fresh episodes, the outputs."""
+    the search (Algorithm 1), the confirmation of its CrashShapes on fresh episodes, their shrink, the outputs."""
     start = time.perf_counter()
     mesh = prepare_object(plan)  # refused (too big, another task's, an edited record) before any file
     parts = build_parts(plan, mesh)  # a class that cannot be built is one line and leaves no folder
@@ -95,8 +97,9 @@ def red_team(plan: RunPlan) -> dict:
         with resumable(plan.run_dir):
             result = search(plan, deformer, optimizer, parts, journal, seeds)
             confirmation = confirm_shapes(plan, result, deformer, parts.evaluator, seeds)
+            shrunk = shrink_shapes(plan, result, deformer, parts.evaluator, confirmation, seeds)
         summary = write_outputs(plan, result, deformer, handle_set, parts.evaluator,
-                                wall_s=time.perf_counter() - start, confirmation=confirmation)
+                                wall_s=time.perf_counter() - start, confirmation=confirmation, shrink=shrunk)
         report(plan, summary, parts.logger)
     print_summary(summary, plan.run_dir)
     return summary
@@ -225,6 +228,35 @@ def confirm_shapes(plan: RunPlan, result: RedTeamResult, deformer: ShapeDeformer
                        ci=plan.score.ci, on_evaluated=lambda: bar.update(1))
 
 
+def shrink_settings(plan: RunPlan) -> ShrinkSettings | None:
+    """The run's shrink settings (``budget.shrink``; ``None``: off, or no confirmation to build on)."""
+    b = plan.budget
+    return ShrinkSettings(b.shrink_ratio, b.shrink_min_alpha, b.shrink_rounds) if b.shrink and b.confirm_trials \
+        else None
+
+
+def shrink_shapes(plan: RunPlan, result: RedTeamResult, deformer: ShapeDeformer, evaluator,
+                  confirmation: dict | None, seeds: list[int]) -> dict | None:
+    """Shrink each confirmed CrashShape on fresh episodes of its own (:func:`grt.shrink.shrink`); ``None`` when
+    off or none was confirmed."""
+    settings = shrink_settings(plan)
+    confirmed = [c for c in (confirmation or {}).get("shapes", []) if c["confirmed"]]
+    if settings is None or not confirmed:
+        return None
+    thetas = {(r["iteration"], r["candidate"]): r["theta"] for r in result.records}
+    shapes = [ShrinkShape(c["rank"], c["iteration"], c["candidate"], np.asarray(thetas[c["iteration"], c["candidate"]]),
+                          c["score"], tuple(c["ci95"]), confirmation["trials"]) for c in confirmed]
+    fresh = shrink_seeds(plan.budget.seed, confirmation["trials"], seeds, confirmation["seeds"])
+    levels = 1 + len(shapes) * len(settings.ladder())
+    with progress(levels, f"shrink (nominal, then up to {levels - 1} levels of {len(shapes)} CrashShapes)",
+                  "level") as bar:
+        out = shrink(plan.run_dir, shapes, deformer, evaluator, fresh, settings, binary=plan.score.binary,
+                     ci=plan.score.ci, validity=plan.deformer.check, on_level=lambda: bar.update(1))
+    log.info("shrink: %d simulated trials over %d levels", out["trials_used"],
+             sum(s["levels_tested"] for s in out["shapes"]))
+    return out
+
+
 def report(plan: RunPlan, summary: dict, logger) -> None:
     """Give the logger the summary and pictures, then film the CrashShapes and write ``report.html``
     (:func:`write_report`)."""
@@ -259,9 +291,18 @@ def nothing_to_do(run_dir: Path, plan: RunPlan) -> str | None:
         nominal = next((r for r in records if r["iteration"] == 0), None)
         if nominal is None or crash_records(records, plan.budget.top_k, nominal["score"], plan.crash_margin):
             return None
+    settings = shrink_settings(plan)
+    confirmed = any(c.get("confirmed") for c in (summary.get("confirm") or {}).get("shapes", []))
+    if settings is not None and confirmed and not _same_shrink(summary.get("shrink"), settings):
+        return None
     return (f"nothing to do: {run_dir} is a finished run ({len(records)} candidates in its journal, summary.json "
             f"written); nothing was changed. Its table: python -m grt.report {shlex.quote(str(run_dir))}; more "
             f"episodes for its CrashShapes: {resume_command(run_dir)} budget.confirm_trials=N")
+
+
+def _same_shrink(block: dict | None, settings: ShrinkSettings) -> bool:
+    """Whether a summary's ``shrink`` block was made with ``settings``."""
+    return block is not None and all(block.get(k) == v for k, v in settings.fields().items())
 
 
 def check_same_object(run_dir: Path, mesh, plan: RunPlan) -> None:

@@ -58,7 +58,9 @@ from grt.cli.launchers import check_launcher, unfinished_job
 from grt.cli.sweeps import STARTED, sweep_end
 from grt.config import make_plan, validate
 from grt.errors import INTERRUPTED, TERMINATED, Terminated
+from grt.plan import Budget
 from grt.runfolder import (
+    SHRINK_KEYS,
     discard_new,
     interrupted,
     is_run_folder,
@@ -117,15 +119,18 @@ def _say(line: str, also: str = "") -> None:
 
 def _finished(overrides: list[str]) -> str | None:
     """:func:`grt.runner.nothing_to_do` for ``resume=DIR`` with ``overrides`` (checked by ``resume_overrides``),
-    or ``None``: the run's own config with the ``budget.confirm_trials`` given; a setting made after the
+    or ``None``: the run's own config with the ``budget.confirm_trials`` and shrink settings given; a setting made after the
     search (``report``, ``budget.videos``, ``logger``) given is work for the run itself to judge."""
     parsed = OverridesParser.create().parse_overrides(overrides)
     run_dir = Path(next(o for o in reversed(parsed) if o.key_or_group == "resume").value())
     cfg = load_run_config(run_dir)
+    for key in SHRINK_KEYS:  # a run saved before the shrink existed: this command's defaults
+        if OmegaConf.select(cfg, key, default=None) is None:
+            OmegaConf.update(cfg, key, getattr(Budget, key.split(".")[1]), merge=False)
     for o in parsed:
         if any(o.key_or_group == k or o.key_or_group.startswith((f"{k}.", f"{k}/")) for k in AFTER_SEARCH):
             return None
-        if o.key_or_group == "budget.confirm_trials":
+        if o.key_or_group in ("budget.confirm_trials", *SHRINK_KEYS):
             OmegaConf.update(cfg, o.key_or_group, o.value(), merge=False)
     return nothing_to_do(run_dir, make_plan(cfg))
 
