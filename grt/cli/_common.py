@@ -69,6 +69,8 @@ ABOUT = {
     "bench": "measure GRT's speed and accuracy against a baseline measured in the same run",
     "report": "the paper's tables (and report.html) of a run, a sweep or an experiments/ folder",
     "replay": "re-run one trial of a red-team run (a candidate's or the nominal object's), optionally filmed",
+    "profile": "measure how much shape change breaks a policy: success against deformation size, random and "
+               "adversarial, and two margins in mm",
     "objects": "list the built-in objects (size, faces, named regions), optionally export them",
     "setup": "install what an optional policy needs: ManiSkill's motion planners' numpy, Contact-GraspNet's weights",
     "calibrate": "check a ManiSkill task's nominal swap against the stock env, seed for seed (agreement, mass, "

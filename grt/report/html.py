@@ -5,7 +5,8 @@
 ``report.html`` beside them: the headline metrics with their intervals and units, the search (every
 candidate's score per iteration and the degradation curve, inline SVG), the nominal object beside each
 CrashShape in 3D coloured by displacement (mm) with its handles and anchors, the failure modes of each
-CrashShape's trials against the nominal's on the same seeds, the videos of replayed trials, the
+CrashShape's trials against the nominal's on the same seeds, each confirmed CrashShape shrunk to its
+smallest confirmed scale and the run's robustness profile (:mod:`grt.report.margins`), the videos of replayed trials, the
 mesh-preparation record, the resolved config, the machine and the commit.
 
 The page opens from ``file://`` with no network: the meshes (base64 float32), the videos (data URIs), the
@@ -31,6 +32,7 @@ import numpy as np
 from grt.fileio import write_text_atomic
 from grt.journal import restore
 from grt.metrics import iter_at_50_label
+from grt.report.margins import margins_section
 from grt.report.modes import esc, modes_section
 from grt.report.tables import ReportError, aggregate, collect
 from grt.runfolder import resume_command
@@ -488,6 +490,7 @@ def render_run(path: Path) -> str:
                  + "<p class='note'>Left: every candidate's score per iteration (hover a dot for its name). "
                  "Right: the degradation curve.</p>", "search"),
         _section("CrashShapes", _shapes_section(run, page), "crashshapes"),
+        _section("How little change breaks it", margins_section(run.path, s), "margins"),
         _section("Failure modes per CrashShape (same episode seeds as the nominal)",
                  modes_section(run.summary, run.records, run.confirm, mode_meanings(run)), "modes"),
         _section("Videos: the nominal object and each CrashShape on the same episode", _videos_section(run), "videos"),

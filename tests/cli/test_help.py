@@ -16,7 +16,7 @@ tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMANDS = ("run", "evaluate", "select", "deform", "bench", "objects", "report", "blueteam", "train", "serve",
-            "replay", "calibrate", "setup")
+            "replay", "calibrate", "setup", "profile")
 
 
 def _cases(make) -> list:
