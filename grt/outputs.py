@@ -223,7 +223,7 @@ def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s
         "population": budget.population, "iterations": budget.iterations,
         "trials": budget.trials, "sigma": budget.sigma, "tau": tau,
         "tau_rel": budget.tau_rel if budget.tau is None else None, "tau_how": tau_how,
-        "seed": budget.seed,
+        "seed": budget.seed, "size_penalty": budget.size_penalty,
         "evaluations": len(records), "evaluated_this_session": result.evaluations,
         # simulator trials behind the journal (racing: a stopped candidate counts the trials it ran), per
         # iteration, and up to the first (confirmed) CrashShape of the top-k

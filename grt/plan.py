@@ -51,6 +51,8 @@ def at_least(low: int) -> Rule:
 POSITIVE = Rule("a finite number > 0", _is_positive)
 POSITIVE_OR_NULL = Rule("null (off) or a finite number > 0", lambda v: v is None or _is_positive(v))
 BOOLEAN = Rule("true or false", lambda v: isinstance(v, bool))
+NON_NEGATIVE = Rule("a finite number >= 0",
+                    lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0)
 FRACTION = Rule("a number strictly between 0 and 1",
                 lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < 1)
 RISK = Rule("a number in [0, 0.5) (0: only stop a candidate that cannot matter even if every trial left fails)",
@@ -91,6 +93,9 @@ class Budget:
             ...); shrink_min_alpha: the smallest scale tried.
         shrink_rounds: rounds of about equal size a level's episodes run in (its trials stop at the first
             round after which its answer is clear).
+        size_penalty: a search for the smallest CrashShape: each candidate's score as the search sees it gets
+            ``size_penalty x S0 x SS / tau`` added (SS its Smoothness Score, tau the run's cap, or 0.087 of the
+            diagonal without one), so of two candidates that fail alike it keeps the smaller; 0: off.
     """
 
     population: int = _setting(10, at_least(1), "candidates per iteration")
@@ -115,6 +120,8 @@ class Budget:
     shrink_ratio: float = _setting(0.7, FRACTION, "the scale of each shrink level relative to the one before")
     shrink_min_alpha: float = _setting(0.05, FRACTION, "the smallest scale of a CrashShape the shrink tries")
     shrink_rounds: int = _setting(8, at_least(1), "rounds a shrink level's episodes run in")
+    size_penalty: float = _setting(0.0, NON_NEGATIVE, "a search for the smallest CrashShape: the search is told "
+                                   "score + size_penalty x S0 x (mean handle displacement / the cap tau); 0: off")
 
     @classmethod
     def of(cls, budget: Mapping) -> Budget:

@@ -93,6 +93,9 @@ class RedTeamLoop:
             candidate runs every trial). A stopped candidate's record has ``race`` (trials run, why it
             stopped, its mean over them) and a NaN ``score``: no metric, CrashShape or confirmation counts
             it; the search is told its mean over the trials it ran.
+        size_penalty, size_scale: a search for the smallest CrashShape (``budget.size_penalty``): the search is
+            told ``score + size_penalty x S0 x SS / size_scale`` (SS: the Smoothness Score, m; ``size_scale``:
+            the run's cap τ, m), the journal keeps the plain score; 0: off.
     """
 
     def __init__(self, deformer: ShapeDeformer, optimizer: Optimizer, evaluator: Evaluator, journal: Journal,
@@ -102,8 +105,9 @@ class RedTeamLoop:
                  on_iteration: Callable[[int, list[float]], None] | None = None, ci: str = "auto",
                  on_nominal: Callable[[float], None] | None = None,
                  validity: Callable[[trimesh.Trimesh, trimesh.Trimesh], dict] | None = None,
-                 racing: Racing | None = None):
+                 racing: Racing | None = None, size_penalty: float = 0.0, size_scale: float | None = None):
         self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
+        self.size_penalty, self.size_scale = float(size_penalty), size_scale
         self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
         self.tau, self.complexity, self.ci = tau, complexity, ci
         self.on_candidate, self.on_iteration, self.on_nominal = on_candidate, on_iteration, on_nominal
@@ -140,7 +144,7 @@ class RedTeamLoop:
             # A candidate the simulator could not score (all trials sim_error, NaN) or an implausible one
             # (self-intersecting, not simulated, NaN) is no CrashShape: the search sees it as the nominal
             # object, so it is never an elite by accident. A raced-out one: its mean over the trials it ran.
-            search = np.where(np.isfinite(told), told, s0)
+            search = np.where(np.isfinite(told), told, s0) + self._penalty(thetas, s0)
             self.optimizer.tell(thetas, search)  # keep ceil(rho N) elites, replicate
             history.append([float(x) for x in scores])
             if self.on_iteration:
@@ -150,6 +154,14 @@ class RedTeamLoop:
                              evaluations=self.evaluations)
 
     # ---------------------------------------------------------------------------------------------
+    def _penalty(self, thetas: np.ndarray, s0: float) -> np.ndarray:
+        """What the search adds to each candidate's score for its size (``budget.size_penalty``): ``lambda x S0 x
+        SS / size_scale``, so that of two candidates that fail alike it keeps the smaller (0 when off)."""
+        if not self.size_penalty or not self.size_scale:
+            return np.zeros(len(thetas))
+        ss = smoothness_score(thetas, self.deformer.meters_per_unit)
+        return self.size_penalty * abs(s0) * ss / self.size_scale
+
     def _nominal_score(self) -> float:
         mesh = self.deformer.mesh
         rec = self.journal.get(0, 0)

@@ -84,7 +84,8 @@ ADDED_DEFAULTS = {"object_scale": 1.0, "mesh": {}, "budget.confirm_trials": 0,
                   "deformer.validity": False}
 # Keys added within format 2 (issue 33): a run made before them ran without them.
 ADDED_IN_FORMAT2 = {"budget.tau_rel": None, "deformer.max_volume_change": None,
-                    "budget.racing": False, "budget.race_rounds": 8, "budget.race_alpha": 0.05}  # issue 39
+                    "budget.racing": False, "budget.race_rounds": 8, "budget.race_alpha": 0.05,
+                    "budget.size_penalty": 0.0}  # issue 39
 # A training (``python -m grt.train``): the keys a resume may set, none of which changes what is trained:
 # train.iterations only says where it stops (a resumed training continues up to it), saving a checkpoint
 # draws no random number, each env's episodes are seeded by (train.seed, env index) whatever process steps

@@ -192,7 +192,8 @@ def search(plan: RunPlan, deformer: ShapeDeformer, optimizer, parts: RunParts, j
             on_iteration=lambda t, scores: (
                 logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
                 folding(t)),
-            ci=score.ci, validity=plan.deformer.check, racing=plan.racing(),
+            ci=score.ci, validity=plan.deformer.check, racing=plan.racing(), size_penalty=plan.budget.size_penalty,
+            size_scale=tau or 0.087 * float(np.linalg.norm(deformer.mesh.extents)),
             on_nominal=lambda s0: check_nominal_floor(s0, plan.nominal_floor, score, resume_command(plan.run_dir)),
         ).run()
 

@@ -4,10 +4,12 @@
 its blue-team ``table3*.json`` tables), ``--records`` adds the commit that wrote each summary, and
 ``--html`` writes ``report.html`` (one self-contained page: a run folder's, or a sweep's linking each run's
 page), ``--search-plot OUT.png`` draws the Final Drop against simulator trials per search method,
+``--margins-plot OUT.png`` draws each run's margins (random, adversarial, smallest shrunk CrashShape) with
+``--small FILE.json`` (``{object: mm}``, what the paper calls small) as bands,
 ``--update-readmes`` rewrites the generated table blocks of every ``README.md`` under PATH
-(``python -m grt.report experiments --update-readmes``). An existing ``--csv`` or ``--search-plot`` file is
-replaced only with ``--overwrite``. A mistake (no such folder, no or a broken ``summary.json``, a ``--csv``
-path that exists or cannot be written) is one ``error:`` line and exit code 2; a run
+(``python -m grt.report experiments --update-readmes``). An existing ``--csv``, ``--search-plot`` or
+``--margins-plot`` file is replaced only with ``--overwrite``. A mistake (no such folder, no or a broken
+``summary.json``, a ``--csv`` path that exists or cannot be written) is one ``error:`` line and exit code 2; a run
 stopped before its end is one line naming the command that finishes it (as ``--html`` says on its page).
 """
 
@@ -30,6 +32,25 @@ from grt.report.tables import (
 from grt.runfolder import is_run_folder, resume_command
 
 
+def _margins_plot(args) -> None:
+    """``--margins-plot``: the margins of the runs under ``args.path`` (and the bands of ``--small``)."""
+    import json
+
+    from grt.report.margins import plot_margins
+
+    check_output_file(args.margins_plot, (".png",), "--margins-plot", overwrite=args.overwrite)
+    try:
+        small = json.loads(args.small.read_text()) if args.small else None
+    except (OSError, ValueError) as exc:
+        raise ReportError(f"--small {args.small}: cannot read it as JSON ({exc}); give {{object: mm}}") from None
+    if small is not None and not (isinstance(small, dict) and all(isinstance(v, int | float) for v in small.values())):
+        raise ReportError(f"--small {args.small}: give a JSON object of sizes in mm, e.g. {{\"mug\": 2.2}}")
+    try:
+        print(f"wrote {plot_margins(collect(args.path)[0], args.margins_plot, small)}")
+    except ValueError as exc:
+        raise ReportError(f"{args.path}: {exc}") from None
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = AppParser("report", description=__doc__.splitlines()[0])
     ap.add_argument("path", type=Path, help="a run folder, a multirun folder or an experiments/ folder")
@@ -41,9 +62,13 @@ def main(argv: list[str] | None = None) -> None:
                     help="write report.html: a run's page (3D CrashShapes, failure modes, videos) or a sweep's")
     ap.add_argument("--search-plot", type=Path, metavar="OUT.png",
                     help="write the degradation curve against simulator trials used, per search method")
+    ap.add_argument("--margins-plot", type=Path, metavar="OUT.png",
+                    help="write each run's margins in mm (runs with a robustness profile)")
+    ap.add_argument("--small", type=Path, metavar="FILE.json",
+                    help="with --margins-plot: {object: mm} drawn as bands (e.g. the paper's reach)")
     ap.add_argument("--update-readmes", action="store_true",
                     help="rewrite the <!-- grt.report ... --> blocks of every README.md under PATH")
-    ap.add_argument("--overwrite", action="store_true", help="replace an existing --csv or --search-plot file")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --csv, --search-plot or --margins-plot file")
     args = ap.parse_args(argv)
     with exit_on_user_error(ReportError):
         if args.html:
@@ -60,6 +85,9 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"wrote {plot(collect(args.path)[0], args.search_plot)}")
             except ValueError as exc:
                 raise ReportError(f"{args.path}: {exc}") from None
+            return
+        if args.margins_plot:
+            _margins_plot(args)
             return
         if args.update_readmes:
             changed = update_readmes(args.path)

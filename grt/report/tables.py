@@ -119,9 +119,10 @@ def score_cell(r: dict, key: str) -> str:
 
 
 def method(r: dict) -> str:
-    """The paper's row label: handles + search, ``+ SS`` under a Smoothness-Score budget."""
+    """The paper's row label: handles + search, ``+ SS`` under a Smoothness-Score budget (``+ size λ``: a search
+    for the smallest CrashShape, ``budget.size_penalty``)."""
     return f"{r['selector']} + {r['optimizer']}" + (" + SS" if r.get("tau") is not None else "") + \
-        (" + racing" if r.get("racing") else "")
+        (" + racing" if r.get("racing") else "") + (f" + size {r['size_penalty']:g}" if r.get("size_penalty") else "")
 
 
 def aggregate(rows: list[dict]) -> list[dict]:
@@ -283,6 +284,11 @@ def render(root: Path, records: bool = False) -> str:
 
     if search := search_markdown(rows):  # runs with trial counts: the search benchmark's table (issue 39)
         parts.append("Simulator trials per method (mean [95% interval] over runs):\n\n" + search)
+    from grt.report.margins import margins_markdown
+
+    if margins := margins_markdown(rows):  # runs with a shrink or a robustness profile
+        parts.append("How much shape change breaks each policy (sizes: the largest surface displacement; "
+                     "intervals in brackets):\n\n" + margins)
     parts += [table3_markdown(path, t, root) for path, t in tables]
     if records and rows:
         parts.append(records_markdown(rows, root))

@@ -120,3 +120,19 @@ def test_a_run_without_a_crashshape_is_refused(tmp_path):
     res = grt("grt.profile", f"run={run_dir}", *TOY_EVALUATOR)
     assert res.returncode == 2 and "found no CrashShape" in res.stderr and "no adversarial direction" in res.stderr
     assert sorted(p.relative_to(run_dir) for p in run_dir.rglob("*")) == before
+
+
+def test_the_report_lists_the_margins_and_draws_them(bar_run, tmp_path):
+    """After the profile of the test above: grt.report's margins table and --margins-plot read the run folder."""
+    if not list((bar_run / "profile").glob("*/profile.json")):
+        pytest.skip("needs the profile of test_a_runs_profile_measures_both_curves_and_its_report_shows_it")
+    res = grt("grt.report", str(bar_run), "--markdown")
+    assert res.returncode == 0, res.stderr[-2000:]
+    row = next(ln for ln in res.stdout.splitlines() if ln.startswith("| grasp | can |") and "α" in ln)
+    assert "mm" not in row and row.count("|") == 8  # S0, both margins, the smallest shape
+    (tmp_path / "small.json").write_text('{"can": 2.3}')
+    out = tmp_path / "margins.png"
+    res = grt("grt.report", str(bar_run), "--margins-plot", str(out), "--small", str(tmp_path / "small.json"))
+    assert res.returncode == 0 and out.stat().st_size > 5_000, res.stderr[-2000:]
+    again = grt("grt.report", str(bar_run), "--margins-plot", str(out))
+    assert again.returncode == 2 and "--overwrite" in again.stderr  # never replaced unasked

@@ -134,3 +134,19 @@ def test_a_finished_run_without_a_shrink_is_shrunk_by_its_resume(tmp_path):
     third = grt(f"resume={run_dir}", "budget.shrink=true")
     assert third.returncode == 0 and "nothing to do" in third.stdout
 
+
+def test_a_size_penalty_steers_the_search_to_smaller_shapes_and_journals_plain_scores(tmp_path):
+    """``budget.size_penalty``: the search is told score + penalty x S0 x SS / tau; its elites, and so the later
+    iterations' candidates, are smaller than without it; the journal keeps the simulated scores."""
+    common = ["budget=smoke", "selector.k=3", "budget.sigma=0.06", "budget.population=6", "budget.iterations=3",
+              "budget.trials=4", "object=can", "+evaluator.bar_mm=6", "budget.tau=0.01", *TOY]
+    sizes = {}
+    for penalty in (0, 4):
+        run_dir = tmp_path / f"p{penalty}"
+        res = grt(*common, f"budget.size_penalty={penalty}", f"hydra.run.dir={run_dir}")
+        assert res.returncode == 0, res.stderr[-2000:]
+        records = [json.loads(ln) for ln in (run_dir / "journal.jsonl").read_text().splitlines()]
+        assert all(r["score"] is None or 0 <= r["score"] <= 1 for r in records)  # plain success rates
+        sizes[penalty] = np.mean([r["smoothness_m"] for r in records if r["iteration"] == 3])
+        assert summary(run_dir)["size_penalty"] == penalty
+    assert sizes[4] < sizes[0]
