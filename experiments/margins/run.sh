@@ -21,15 +21,16 @@ GRASP_SIZES='profile.sizes=[0.5,1,2,4,8,16]'
 PLUG_SIZES='profile.sizes=[0.125,0.25,0.5,1,2,4]'
 CUBE_SIZES='profile.sizes=[0.25,0.5,1,2,4,8]'
 
-cell() {  # cell NAME "RUN OVERRIDES" "PROFILE OVERRIDES"
-  local name=$1 run_args=$2 profile_args=$3 dir="$OUT/$1"
+cell() {  # cell NAME "RUN OVERRIDES" "PROFILE OVERRIDES" [SEARCH OVERRIDES]
+  local name=$1 run_args=$2 profile_args=$3 dir="$OUT/$1" search=("${SEARCH[@]}")
+  [[ $# -ge 4 ]] && read -r -a search <<< "$4"
   [[ -n "$ONLY" && "$name" != "$ONLY"* ]] && return 0
   echo "== $name ($(date -u +%H:%M:%S))"
   if [[ -f "$dir/run_config.yaml" ]]; then  # goes on where it stopped; a finished run: "nothing to do"
     nice -n 5 "$PY" -m grt.run "resume=$dir"
   else
     # shellcheck disable=SC2086
-    nice -n 5 "$PY" -m grt.run $run_args "${SEARCH[@]}" "hydra.run.dir=$dir"
+    nice -n 5 "$PY" -m grt.run $run_args "${search[@]}" "hydra.run.dir=$dir"
   fi
   if compgen -G "$dir/profile/*/profile.json" > /dev/null; then
     echo "   profile done: $(ls -d "$dir"/profile/*/ | tail -1)"
@@ -44,6 +45,9 @@ cell() {  # cell NAME "RUN OVERRIDES" "PROFILE OVERRIDES"
 }
 
 GRASP_PROFILE="$GRASP_SIZES profile.shapes=3 profile.trials=12"
+# The demo (make demo: the mug, the antipodal planner, budget=quick) with its top 3 CrashShapes confirmed on 32
+# fresh episodes and shrunk, then its profile with every default (python -m grt.profile run=RUN).
+cell demo_mug_antipodal "" "" "budget.confirm_trials=32 budget.videos=0"
 cell push_cube_expert   "task=push_cube policy=push_cube_expert"   "$CUBE_SIZES profile.shapes=4 profile.trials=16"
 cell push_cube_state    "task=push_cube policy=push_cube_state"    "$CUBE_SIZES profile.shapes=4 profile.trials=16"
 cell grasp_mug_antipodal    "object=mug policy=antipodal"       "$GRASP_PROFILE"

@@ -66,9 +66,9 @@ def test_the_release_folder_is_format_1_and_migrates_without_changing_its_values
     record = OmegaConf.load(release_run / RUN_CONFIG)
     assert FORMAT_KEY not in record
     cfg = load_run_config(release_run)
-    expected = OmegaConf.to_container(record.config)  # nothing was missing but the keys of issues 33 and 39, off
+    expected = OmegaConf.to_container(record.config)  # nothing was missing but the keys added since, off
     expected["budget"]["tau_rel"], expected["deformer"]["max_volume_change"] = None, None
-    expected["budget"].update(racing=False, race_rounds=8, race_alpha=0.05)
+    expected["budget"].update(racing=False, race_rounds=8, race_alpha=0.05, size_penalty=0.0)
     assert OmegaConf.to_container(cfg) == expected
     saved = SavedRun.load(release_run)
     assert saved.format == 1 and saved.overrides == RELEASE_COMMAND and saved.choices["optimizer"] == "gaussian"
