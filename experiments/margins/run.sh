@@ -3,7 +3,8 @@
 # CrashShapes are confirmed on 32 fresh episodes and shrunk (budget.shrink, on by default), then its robustness
 # profile (python -m grt.profile run=...; a run that found no CrashShape gets random shapes alone, with the
 # same task, policy, object and handles). Each step is skipped when its files exist, and a killed run goes on
-# where it stopped: the same command again. Run folders go to $OUT (outputs/margins); collect.py copies their
+# where it stopped: the same command again (a cell that stops, e.g. its folder busy with another process, is
+# said and the next one goes on). Run folders go to $OUT (outputs/margins); collect.py copies their
 # records here.
 #
 #   bash experiments/margins/run.sh              # every cell, cheapest first
@@ -27,20 +28,21 @@ cell() {  # cell NAME "RUN OVERRIDES" "PROFILE OVERRIDES" [SEARCH OVERRIDES]
   [[ -n "$ONLY" && "$name" != "$ONLY"* ]] && return 0
   echo "== $name ($(date -u +%H:%M:%S))"
   if [[ -f "$dir/run_config.yaml" ]]; then  # goes on where it stopped; a finished run: "nothing to do"
-    nice -n 5 "$PY" -m grt.run "resume=$dir"
+    nice -n 5 "$PY" -m grt.run "resume=$dir" || { echo "   $name: the run stopped (rc $?); the next cell"; return 0; }
   else
     # shellcheck disable=SC2086
-    nice -n 5 "$PY" -m grt.run $run_args "${search[@]}" "hydra.run.dir=$dir"
+    nice -n 5 "$PY" -m grt.run $run_args "${search[@]}" "hydra.run.dir=$dir" \
+      || { echo "   $name: the run stopped (rc $?); the next cell"; return 0; }
   fi
   if compgen -G "$dir/profile/*/profile.json" > /dev/null; then
     echo "   profile done: $(ls -d "$dir"/profile/*/ | tail -1)"
   elif grep -q '"crashshape_found": true' "$dir/summary.json"; then
     # shellcheck disable=SC2086
-    nice -n 5 "$PY" -m grt.profile "run=$dir" $profile_args
+    nice -n 5 "$PY" -m grt.profile "run=$dir" $profile_args || echo "   $name: the profile stopped (rc $?)"
   else  # no CrashShape: no adversarial direction; random shapes alone, same task, policy, object and handles
     # shellcheck disable=SC2086
     nice -n 5 "$PY" -m grt.profile $run_args $profile_args budget.workers=2 \
-      "hydra.run.dir=$dir/profile/random-$(date -u +%Y-%m-%d_%H-%M-%S)"
+      "hydra.run.dir=$dir/profile/random-$(date -u +%Y-%m-%d_%H-%M-%S)" || echo "   $name: the profile stopped (rc $?)"
   fi
 }
 
@@ -51,11 +53,11 @@ cell demo_mug_antipodal "" "" "budget.confirm_trials=32 budget.videos=0"
 cell push_cube_expert   "task=push_cube policy=push_cube_expert"   "$CUBE_SIZES profile.shapes=4 profile.trials=16"
 cell push_cube_state    "task=push_cube policy=push_cube_state"    "$CUBE_SIZES profile.shapes=4 profile.trials=16"
 cell grasp_mug_antipodal    "object=mug policy=antipodal"       "$GRASP_PROFILE"
-cell grasp_bottle_antipodal "object=bottle policy=antipodal"    "$GRASP_PROFILE"
-cell grasp_can_antipodal    "object=can policy=antipodal"       "$GRASP_PROFILE"
+cell grasp_mug_contact_graspnet    "object=mug policy=contact_graspnet"    "$GRASP_PROFILE"
 cell insertion_plug_state "task=insertion policy=insertion_state selector=manual" "$PLUG_SIZES profile.shapes=4 profile.trials=16"
 cell insertion_plug_pcd   "task=insertion policy=insertion_pcd selector=manual"   "$PLUG_SIZES profile.shapes=4 profile.trials=16"
-cell grasp_mug_contact_graspnet    "object=mug policy=contact_graspnet"    "$GRASP_PROFILE"
+cell grasp_bottle_antipodal "object=bottle policy=antipodal"    "$GRASP_PROFILE"
+cell grasp_can_antipodal    "object=can policy=antipodal"       "$GRASP_PROFILE"
 cell grasp_bottle_contact_graspnet "object=bottle policy=contact_graspnet" "$GRASP_PROFILE"
 cell grasp_can_contact_graspnet    "object=can policy=contact_graspnet"    "$GRASP_PROFILE"
 echo "== all cells done ($(date -u +%H:%M:%S)); collect: python experiments/margins/collect.py $OUT"
