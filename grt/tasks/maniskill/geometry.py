@@ -57,6 +57,8 @@ class ShapeRecord:
         pose: ``(4, 4)`` the record's pose in the actor frame.
         mesh: the record's solid in the actor frame (m), ``None`` for a plane.
         density: kg/m^3; material: the ``PhysxMaterial``; patch radii: PhysX's.
+        volume: the primitive's own volume (m^3; the solid of a sphere, a capsule or a cylinder is a polyhedron
+            about 1% smaller), 0 for a plane.
     """
 
     kind: str
@@ -66,6 +68,7 @@ class ShapeRecord:
     material: object = None
     patch_radius: float = 0.0
     min_patch_radius: float = 0.0
+    volume: float = 0.0
 
 
 def _pose_matrix(pose) -> np.ndarray:
@@ -115,10 +118,26 @@ def record_solid(record) -> trimesh.Trimesh | None:
     return solid
 
 
+def record_volume(record, solid: trimesh.Trimesh | None) -> float:
+    """The volume (m^3) PhysX gives a SAPIEN collision record: the primitive's own for a sphere, a capsule or a
+    cylinder (``length`` is the half length), the solid's for a box or a mesh, 0 for a plane."""
+    radius, half = float(getattr(record, "radius", 0.0)), float(getattr(record, "length", 0.0))
+    exact = {"sphere": 4.0 / 3.0 * np.pi * radius ** 3,
+             "capsule": np.pi * radius ** 2 * 2 * half + 4.0 / 3.0 * np.pi * radius ** 3,
+             "cylinder": np.pi * radius ** 2 * 2 * half}
+    if record.type in exact:
+        return float(exact[record.type])
+    return abs(float(solid.volume)) if solid is not None else 0.0
+
+
 def read_records(builder) -> list[ShapeRecord]:
     """The collision records of a ManiSkill ``ActorBuilder`` (before it builds), each with its solid."""
-    return [ShapeRecord(r.type, _pose_matrix(r.pose), record_solid(r), float(r.density), r.material,
-                        float(r.patch_radius), float(r.min_patch_radius)) for r in builder.collision_records]
+    out = []
+    for r in builder.collision_records:
+        solid = record_solid(r)
+        out.append(ShapeRecord(r.type, _pose_matrix(r.pose), solid, float(r.density), r.material,
+                               float(r.patch_radius), float(r.min_patch_radius), record_volume(r, solid)))
+    return out
 
 
 def records_mesh(records: list[ShapeRecord]) -> trimesh.Trimesh:
@@ -211,3 +230,66 @@ def nearest_records(parts: list[np.ndarray], records: list[ShapeRecord]) -> list
         dist = [float(np.linalg.norm(np.clip(c, *records[i].mesh.bounds) - c)) for i in solid]
         out.append(solid[int(np.argmin(dist))])
     return out
+
+
+#: the stock record kinds whose actor GRT builds with surface wedges (a round actor: one sphere, capsule or cylinder)
+ROUND_KINDS = ("sphere", "capsule", "cylinder")
+#: how many wedges cover a round actor's surface (measured on PlaceSphere-v1 and RollBall-v1:
+#: experiments/maniskill/fidelity/README.md)
+ROUND_WEDGES = 8
+
+
+def is_round(records: list[ShapeRecord]) -> bool:
+    """Whether the stock actor is one round primitive (a sphere, capsule or cylinder record and nothing else)."""
+    solid = [r for r in records if r.mesh is not None]
+    return len(solid) == 1 and solid[0].kind in ROUND_KINDS
+
+
+def _directions(count: int) -> np.ndarray:
+    """``(count, 3)`` unit directions spread evenly over the sphere (a Fibonacci lattice)."""
+    i = np.arange(count) + 0.5
+    polar = np.arccos(1 - 2 * i / count)
+    azimuth = np.pi * (1 + 5 ** 0.5) * i
+    return np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1)
+
+
+def _capped(points: np.ndarray, cap: int) -> np.ndarray:
+    """The convex hull's vertices of ``points``, at most ``cap`` of them (farthest-point sampling beyond it)."""
+    from scipy.spatial import ConvexHull
+
+    verts = points[ConvexHull(points).vertices]
+    if len(verts) <= cap:
+        return verts
+    chosen = [int(np.argmax(np.linalg.norm(verts - verts.mean(axis=0), axis=1)))]
+    gap = np.linalg.norm(verts - verts[chosen[0]], axis=1)
+    while len(chosen) < cap:
+        chosen.append(int(np.argmax(gap)))
+        gap = np.minimum(gap, np.linalg.norm(verts - verts[chosen[-1]], axis=1))
+    return verts[chosen]
+
+
+def round_wedges(vertices: np.ndarray, cap: int, count: int = ROUND_WEDGES) -> list[np.ndarray]:
+    """Convex caps that cover a round solid's surface finely: the mesh's vertices grouped by their direction
+    from the centroid (``count`` evenly spread directions, each group widened to overlap its neighbours), each
+    group's hull, at most ``cap`` vertices each; the actor's own parts fill the inside. One hull of ``cap``
+    vertices is a coarse polyhedron (64 on a sphere: 10% of its volume missing, flat faces it rests and rolls
+    on); ``count`` caps carry up to ``count`` times as many surface vertices.
+
+    Args:
+        vertices: ``(V, 3)`` the candidate mesh's vertices (actor frame, m); cap: vertices per wedge (>= 8).
+
+    Returns:
+        ``count`` arrays ``(K, 3)``, ``K <= cap`` (fewer when a group has too few vertices to span a wedge).
+    """
+    pts = np.asarray(vertices, np.float64)
+    centre = pts.mean(axis=0)
+    rays = pts - centre
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    score = rays @ _directions(count).T  # (V, count)
+    best = score.max(axis=1, keepdims=True)
+    wedges = []
+    for k in range(count):
+        group = pts[score[:, k] >= best[:, 0] - 0.05]
+        if len(group) >= 4:
+            wedges.append(_capped(group, max(8, int(cap))))
+    return wedges

@@ -57,7 +57,7 @@ from grt.config import at_least
 from grt.tasks.base import COMMON_MODES, Episodes, TaskInputError
 from grt.tasks.batched import EpisodeSession, Objects, info_at, to_numpy
 from grt.tasks.maniskill.driver import StepLimit, StepRecorder
-from grt.tasks.maniskill.geometry import ActorFrame, check_grt_frame
+from grt.tasks.maniskill.geometry import ROUND_WEDGES, ActorFrame, check_grt_frame
 from grt.tasks.maniskill.make import make_env
 from grt.tasks.maniskill.swap import ActorSwap, Candidate
 
@@ -152,6 +152,7 @@ class ManiSkillSession(EpisodeSession):
         driver_step_limit: steps an env-driving policy may take (``None``: 20 x ``max_steps``).
         num_envs, sim_backend, render_backend, sim_config: ManiSkill's (``evaluator=gpu`` sets them:
             :mod:`grt.tasks.batched`; more than one sub-scene for closed-loop policies only).
+        round_wedges: surface caps added to a round actor's parts (:func:`~.geometry.round_wedges`; 0: none).
     """
 
     policy_kinds = ("closed_loop", "env_driver")
@@ -163,7 +164,7 @@ class ManiSkillSession(EpisodeSession):
                  score: str = "success", score_unit: str = "", failure_flags=None, refresh: str | None = None,
                  env_module: str | None = None, max_steps: int | None = None, rebuild_each_trial: bool = False,
                  driver_step_limit: int | None = None, num_envs: int = 1, sim_backend: str = "physx_cpu",
-                 render_backend: str = "cpu", sim_config: dict | None = None):
+                 render_backend: str = "cpu", sim_config: dict | None = None, round_wedges: int = ROUND_WEDGES):
 
         import_env_module(env_module)
         import mani_skill.envs  # noqa: F401 - registers the stock envs
@@ -173,6 +174,9 @@ class ManiSkillSession(EpisodeSession):
             if value is not None and not at_least(1).check(value):
                 raise TaskInputError(f"task.session.{key}={value}: give {at_least(1).accepts} (control steps), or null for "
                                      + ("the env's own max_episode_steps" if key == "max_steps" else "20 x max_steps"))
+        if not at_least(0).check(round_wedges):
+            raise TaskInputError(f"task.session.round_wedges={round_wedges}: give {at_least(0).accepts} (surface caps "
+                                 "added to a round actor's convex parts; 0: none)")
         super().__init__(policy, 1, rebuild_each_trial)
         self.task_name, self.env_id, self.actor = str(task_name), str(env_id), str(actor)
         try:
@@ -182,7 +186,7 @@ class ManiSkillSession(EpisodeSession):
         self.score_key, self.score_unit = str(score), str(score_unit or "")
         self.flags = failure_modes(failure_flags)
         self.failure_modes = (*COMMON_MODES, *(m for _, m in self.flags), "timeout")
-        self.swap = ActorSwap(self.actor, _resolve(refresh))
+        self.swap = ActorSwap(self.actor, _resolve(refresh), int(round_wedges))
         self.num_envs = int(num_envs)
         kwargs = dict(obs_mode=obs_mode, sim_backend=sim_backend, render_backend=render_backend, num_envs=self.num_envs,
                       **({"sim_config": dict(sim_config)} if sim_config else {}), **(env_kwargs or {}))

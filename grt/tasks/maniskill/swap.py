@@ -21,9 +21,10 @@ policy that drives the env itself (a motion planner's ``solve(env, seed)``) — 
   rebuild at every reset, such as PegInsertionSide, get the candidate at every rebuild). An env that draws
   the actor's size at each rebuild gets the candidate scaled per axis by this build's stock extents over
   the reference build's (the first one), so the candidate follows the env's own size randomization.
-- ``_initialize_episode``: after the env placed the actor (by its *stock* size), **settle**: a candidate
-  that reaches lower than the stock actor at that pose (a taller cube starts inside the table) is lifted
-  by the difference, to rest where the stock actor rested.
+- ``_initialize_episode``: after the env placed the actor (by its *stock* size), **settle**: the candidate is
+  moved up or down so that its lowest point is where the stock actor's was at that pose: a taller cube does
+  not start inside the table, and a shorter one, or a polyhedral sphere (whose lowest point is a hair above
+  the sphere's), does not start in the air and drop.
 - ``evaluate``: the **refresh** (the task's ``refresh`` function, :mod:`grt.tasks.maniskill.refresh`) sets
   the attributes the env's success check reads from the candidate's geometry (``cube_half_size``,
   ``peg_head_offsets``, ...) before every check; the stock values are put back before the env loads a
@@ -33,6 +34,7 @@ policy that drives the env itself (a motion planner's ``solve(env, seed)``) — 
 from __future__ import annotations
 
 import copy
+import logging
 import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -42,12 +44,17 @@ import numpy as np
 import trimesh
 
 from grt.tasks.maniskill.geometry import (
+    ROUND_WEDGES,
     ActorGeometryError,
     ShapeRecord,
+    is_round,
     nearest_records,
     read_records,
     records_mesh,
+    round_wedges,
 )
+
+log = logging.getLogger(__name__)
 
 _ACTIVE: list[ActorSwap] = []  # the swap whose env is loading its scene now (a stack: one env per process)
 _ORIGINAL_BUILD = None
@@ -147,17 +154,22 @@ class ActorSwap:
         actor: the actor's builder name, exact or a regex (``peg_\\d+``), matched with ``re.fullmatch``.
         refresh: ``refresh(env, swap) -> {attribute: value}``, the attributes the env's success check reads,
             computed from the candidate's geometry (``None``: nothing to refresh).
+        round_wedges: surface caps of the candidate's mesh added to a round actor's parts
+            (:func:`~grt.tasks.maniskill.geometry.round_wedges`; 0: the parts alone).
     """
 
-    def __init__(self, actor: str, refresh: Callable[[object, ActorSwap], dict] | None = None):
+    def __init__(self, actor: str, refresh: Callable[[object, ActorSwap], dict] | None = None,
+                 round_wedges: int = ROUND_WEDGES):
         self.pattern = re.compile(str(actor))
         self.refresh = refresh
+        self.round_wedges = int(round_wedges)
         self.candidates: dict[int, Candidate] = {}
         self.reference: trimesh.Trimesh | None = None  # the first build's stock solid (actor frame)
         self.reference_solids: list[trimesh.Trimesh] = []  # ... and its records' solids, one per record
         self.builds: list[Build] = []
         self.names: list[str] = []  # every actor name built in the last scene (for messages)
         self.env = None
+        self.mass_source = "stock"  # where the last build's mass came from: stock | mesh | env | parts (why)
         self._saved: dict[str, object] = {}
         _install()
 
@@ -252,8 +264,12 @@ class ActorSwap:
         from grt.tasks.scene import attach_convex_parts, render_mesh_shape
 
         parts = [np.asarray(p, np.float64) * scale for p in cand.parts]
+        if self.round_wedges and is_round(records):  # a round actor: its parts and fine caps of its own mesh
+            parts += round_wedges(np.asarray(cand.mesh.vertices) * scale, max(len(p) for p in parts),
+                                  self.round_wedges)
         owners = nearest_records(parts, records)
         colour = _stock_colour(builder)
+        props = self._mass_properties(builder, cand, records, scale)
         builder.collision_records, builder.visual_records = [], []
         if builder.scene.can_render():
             mesh = cand.mesh.copy()
@@ -272,6 +288,10 @@ class ActorSwap:
                     shape.set_patch_radius(r.patch_radius)
                     shape.set_min_patch_radius(r.min_patch_radius)
             counted.append(built)
+            if props is not None:
+                component.set_mass(props[0])
+                component.set_cmass_local_pose(props[1])
+                component.set_inertia(props[2])
             return component
 
         builder.build_physx_component = build_physx_component
@@ -279,6 +299,34 @@ class ActorSwap:
         if not counted or min(counted) != len(parts):
             raise ValueError(f"only {min(counted or [0])} of {len(parts)} collision parts of {name!r} were built")
         return actor, np.concatenate(parts)
+
+    def _mass_properties(self, builder, cand: Candidate, records: list[ShapeRecord], scale: np.ndarray):
+        """``(mass, cmass pose, principal moments)`` to give the candidate's body (:mod:`.massprops`): the env's own
+        numbers when it set them (``set_mass_and_inertia``), else the candidate's mesh under the records' density
+        field; ``None`` for a body without mass (kinematic, static). A mesh that is no closed solid keeps the mass
+        PhysX gives its parts, said in :attr:`mass_source`."""
+        import sapien
+
+        from grt.tasks.maniskill.massprops import candidate_mass
+
+        if getattr(builder, "physx_body_type", "dynamic") != "dynamic":
+            return None
+        if not getattr(builder, "_auto_inertial", True):
+            self.mass_source = "env"
+            return builder._mass, builder._cmass_local_pose, np.asarray(builder._inertia, np.float64)
+        solids = [r for r in records if r.mesh is not None]
+        mesh = cand.mesh.copy()
+        mesh.vertices = np.asarray(mesh.vertices) * scale
+        try:
+            props = candidate_mass(mesh, [r.mesh for r in solids],
+                                   [r.density * r.volume / max(abs(float(r.mesh.volume)), 1e-18) for r in solids])
+        except ValueError as err:
+            self.mass_source = f"parts ({err})"
+            log.warning("the candidate's mesh %s: its body gets the mass of its convex parts", err)
+            return None
+        self.mass_source = "mesh"
+        com, quat, moments = props.principal()
+        return float(props.mass), sapien.Pose(com, quat), moments
 
     # ------------------------------------------------------------------ the env's hooks
     def attach(self, env) -> None:
@@ -305,8 +353,8 @@ class ActorSwap:
         env._load_scene, env._initialize_episode, env.evaluate = _load_scene, _initialize_episode, _evaluate
 
     def settle(self, env_idx) -> list[float]:
-        """Lift each swapped actor being reset whose candidate reaches below where the stock actor reached at
-        the env's pose, by the difference (m; returned per sub-scene, 0 where nothing moved)."""
+        """Move each swapped actor being reset up or down so that the candidate's lowest point is where the stock
+        actor's lowest point was at the env's pose (m moved up, per sub-scene; negative: down)."""
         from mani_skill.utils import common
         from mani_skill.utils.structs.pose import Pose
 
@@ -322,9 +370,9 @@ class ActorSwap:
                 rot = _quat_matrix(raw[k, 3:7])
                 stock = _lowest(rot, np.asarray(b.stock.vertices) * 1.0)
                 cand = _lowest(rot, b.hulls[k])
-                lift = max(0.0, stock - cand)
+                lift = stock - cand
                 lifts.append(lift)
-                if lift > 0:
+                if abs(lift) > 1e-7:
                     raw[k, 2] += lift
                     moved = True
             if moved:
