@@ -87,3 +87,30 @@ def plot_shapes(nominal: trimesh.Trimesh, shapes: list[tuple[trimesh.Trimesh, st
     fig.savefig(path)
     plt.close(fig)
     return Path(path)
+
+
+def plot_divergence(episodes: list[dict], path: Path, title: str = "") -> Path:
+    """The swapped actor's pose divergence from the stock actor per control step (mm above, deg below), one line
+    per replayed episode, its 0.1 mm-nudge floor dotted (``episodes``: the records of
+    :func:`grt.tasks.maniskill.fidelity.check`)."""
+    fig, axes = plt.subplots(2, 1, figsize=(7, 5), dpi=120, sharex=True)
+    colours = plt.cm.tab10(np.arange(len(episodes)) % 10)
+    for e, colour in zip(episodes, colours, strict=True):
+        s = e["series"]
+        for ax, unit in zip(axes, ("mm", "deg"), strict=True):
+            ax.plot(s[f"swap_{unit}"], color=colour, lw=1.2, label=f"seed {e['seed']}: swap vs stock")
+            ax.plot(s[f"nudge_{unit}"], color=colour, lw=0.8, ls=":", label=f"seed {e['seed']}: stock nudged 0.1 mm")
+    for ax, unit, what in zip(axes, ("mm", "deg"), ("distance between origins", "angle between orientations"),
+                              strict=True):
+        ax.set_ylabel(f"{what} ({unit})", fontsize=8)
+        ax.set_yscale("symlog", linthresh=1.0)
+        ax.set_ylim(bottom=0)
+        ax.axhline(1.0, color="gray", lw=0.6, ls="--")
+        ax.grid(alpha=0.3)
+    axes[1].set_xlabel("control step")
+    axes[0].set_title(title or "open-loop replay: swapped actor vs stock actor", fontsize=9)
+    axes[0].legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return Path(path)
