@@ -97,3 +97,21 @@ def peg_insertion_side(env, swap: ActorSwap) -> dict:
         head[i, 0] = float(hull[:, 0].max())
         halves[i] = torch.as_tensor(np.ptp(hull, axis=0) / 2, dtype=torch.float32)
     return {"peg_head_offsets": Pose.create_from_pq(p=head), "peg_half_sizes": halves}
+
+
+def place_sphere(env, swap: ActorSwap) -> dict:
+    """PlaceSphere-v1 judges the sphere on the bin by ``|z - z_bin - radius - block_half_size[0]| <= 5 mm``. With a
+    candidate, ``radius`` is the height of its origin when it rests in its current orientation (as
+    :func:`push_cube`); the bin is not swapped."""
+    rots = _rotations(env.obj)
+    return {"radius": _scalar_or_tensor([depth_below(swap, r, i) for i, r in enumerate(rots)], env.device)}
+
+
+def poke_cube(env, swap: ActorSwap) -> dict:
+    """PokeCube-v1's success reads no size of the peg, but its state observation and its peg-to-cube checks read
+    the *head point* ``peg.pose * peg_head_offsets`` (the +x end of the nominal peg). With a candidate, the head
+    point is the +x end of the candidate's parts on its axis, as :func:`peg_insertion_side`."""
+    from mani_skill.utils.structs.pose import Pose
+
+    heads = [[float(swap.hull(i)[:, 0].max()), 0.0, 0.0] for i in range(env.num_envs)]
+    return {"peg_head_offsets": Pose.create_from_pq(p=heads)}
