@@ -164,6 +164,7 @@ def _user_policy(tmp_path: Path) -> tuple[list[str], dict]:
 # A calibration that cannot compare is one line naming the side that failed, and writes nothing (the stock
 # env that does not build was a traceback; a policy that fails on the stock actor gave "agreement 1.000").
 @pytest.mark.slow
+@pytest.mark.sim
 @pytest.mark.parametrize(("args", "words"), [
     (["task=push_cube", "policy=push_cube_expert", "+task.session.env_kwargs.foo=1"],
      ["calibration cannot run: the stock env fails to build", "unexpected keyword argument 'foo'"]),
@@ -185,6 +186,7 @@ def test_a_calibration_that_cannot_run_is_one_line_naming_the_side_that_failed(t
 
 
 @pytest.mark.slow
+@pytest.mark.sim
 def test_calibrate_replays_the_policys_episode_open_loop_and_its_saved_actions_replay_without_a_policy(tmp_path):
     """The fidelity check: the push expert's stock episode replayed on the stock actor (exact: 0 mm) and on the
     nominal box (a fraction of a millimetre off), saved with its plot and actions; the saved actions replayed
@@ -208,6 +210,7 @@ def test_calibrate_replays_the_policys_episode_open_loop_and_its_saved_actions_r
 
 
 @pytest.mark.slow
+@pytest.mark.sim
 def test_a_task_without_a_policy_is_calibrated_by_grts_scripted_push(tmp_path):
     out = tmp_path / "poke"
     proc = _app("calibrate", "task=poke_cube", "~policy", f"hydra.run.dir={out}")

@@ -59,6 +59,7 @@ def _body(session):
     return session.swap.build_of(0).actor._objs[0].find_component_by_type(physx.PhysxRigidDynamicComponent)
 
 
+@pytest.mark.sim
 def test_the_nominal_tool_gets_the_stock_bodys_mass_centre_and_inertia_whatever_its_parts():
     """Parts that straddle the stock records (CoACD cut the L into a 50 x 125 mm hook and a 150 mm handle): the
     body once took one density per part (centre of mass 1.6 mm off, an inertia 11% off, the mass right by
@@ -82,6 +83,7 @@ def test_the_nominal_tool_gets_the_stock_bodys_mass_centre_and_inertia_whatever_
         s.close()
 
 
+@pytest.mark.sim
 def test_settle_lowers_a_candidate_whose_bottom_is_above_the_stock_actors(push):
     mesh = nominal(push)
     short = mesh.copy()
@@ -100,6 +102,7 @@ def push():
     s.close()
 
 
+@pytest.mark.sim
 def test_the_push_expert_replayed_open_loop_finds_no_difference_in_the_nominal_cube(push):
     """The replay of the stock episode on the stock actor is exact (PhysX on the CPU is deterministic), and the
     nominal swap of a box follows the stock box to a couple of millimetres and degrees (a convex box is not
@@ -112,3 +115,17 @@ def test_the_push_expert_replayed_open_loop_finds_no_difference_in_the_nominal_c
     assert episode["steps"] > 5 and episode["replay"]["max_mm"] == 0.0 and episode["replay"]["max_deg"] == 0.0
     assert episode["swap"]["max_mm"] < 2.0 and episode["swap"]["max_deg"] < 3.0
     assert out["actions"][0].shape == (episode["steps"], push.num_actions)
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize(("task", "attribute", "stock", "scaled"), [
+    ("place_sphere", "radius", [0.02], [0.026]),  # 'on the bin' reads the ball's radius
+    ("poke_cube", "peg_head_offsets", [0.12, 0, 0, 1, 0, 0, 0], [0.156, 0, 0, 1, 0, 0, 0]),  # the head point
+])
+def test_the_new_tasks_refreshes_give_the_stock_values_on_the_nominal_and_follow_a_scaled_candidate(
+        task, attribute, stock, scaled):
+    from grt.tasks.maniskill.refresh_check import check_refresh
+
+    (row,) = check_refresh(task, scale=1.3)
+    assert row["attribute"] == attribute and row["nominal_error_m"] < 1e-6
+    assert row["stock"] == pytest.approx(stock, abs=1e-6) and row["scaled"] == pytest.approx(scaled, abs=1e-4)

@@ -63,7 +63,7 @@ def check_refresh(task: str | Path | dict, scale: float | tuple = 1.3, seed: int
 
         def values(mesh, names=None) -> dict:
             session.load_object(mesh, None if mesh is None else [np.asarray(mesh.convex_hull.vertices)])
-            session._reset_env(seed, True)
+            session.reset(seed, rebuild=True)
             names = names or list(refreshed(swap.refresh, env, swap))
             return {k: np.asarray(_numbers(getattr(env, k)), np.float64).ravel() for k in names}
 
