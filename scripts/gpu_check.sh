@@ -36,7 +36,8 @@ step() {  # step NAME SECONDS COMMAND...: run it under a time limit, log it, rec
 }
 
 { nvidia-smi || true; } >"$OUT/nvidia-smi.txt" 2>&1
-step versions 30 "$PY" -c "import numpy, torch, sapien, mani_skill, sys; print(sys.version); print('numpy', numpy.__version__,
+# the imports alone took over 30 s on a loaded 2-core machine: the CPU fallback gives them longer
+step versions "$([ "$BACKEND" = physx_cuda ] && echo 30 || echo 90)" "$PY" -c "import numpy, torch, sapien, mani_skill, sys; print(sys.version); print('numpy', numpy.__version__,
 'torch', torch.__version__, 'sapien', sapien.__version__, 'mani_skill', mani_skill.__version__, 'cuda',
 torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else '')"
 
