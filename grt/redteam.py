@@ -241,7 +241,8 @@ class RedTeamLoop:
         """A candidate's journal record (``result`` None: not simulated)."""
         if result is not None:
             trials = [{"seed": o.seed, "score": float(o.score), "success": bool(o.success), "mode": o.mode,
-                       **({"error": str(o.info["error"])[:500]} if o.info.get("error") else {})}
+                       **({"error": str(o.info["error"])[:500]} if o.info.get("error") else {}),
+                       **({"note": str(o.info["note"])[:300]} if o.info.get("note") else {})}
                       for o in result.trials]
             score, ci95, outcomes = float(result.score), list(result.ci95(self.ci)), result.outcomes
             wall = check_s + float(result.wall_s)

@@ -836,6 +836,7 @@ def claim(run_dir: Path, resume: str | None, log_file: str = "run.log", app: str
             check_new_folder(run_dir, before, app, log_file)
         except FolderNotEmptyError:
             release(run_dir)
+            _remove_new(run_dir, first_new)  # a folder made inside a run's: not left there
             raise
     _claimed[run_dir.resolve()] = (first_new, before, hydra_files)
 
@@ -846,9 +847,16 @@ def check_new_folder(run_dir: Path, before: set[str], app: str, log_file: str) -
     record and ``log_file``), or is a folder the app continues in place (a ``grt.blueteam`` study, a
     ``grt.train`` training).
 
+    A folder inside a red-team run's folder is refused too, whatever it holds.
+
     Raises:
-        FolderNotEmptyError: names the folder, what it holds and what to do.
+        FolderNotEmptyError: names the folder, what it holds (or the run it is inside) and what to do.
     """
+    outer = next((p for p in Path(run_dir).resolve().parents if is_run_folder(p)), None)
+    if outer is not None:  # its files would join the run's (grt.report OUTER would average both)
+        raise FolderNotEmptyError(f"{run_dir} is inside the red-team run {outer}: a new python -m grt.{app} there "
+                                  "would mix its files with that run's (python -m grt.report would read both as one "
+                                  "folder's); give a folder outside it (hydra.run.dir=PATH)")
     held = sorted(before - {LOCK})
     hydra = run_dir / ".hydra"
     killed_start = set(held) <= {".hydra", log_file} and (

@@ -425,6 +425,23 @@ def recorded_config_dir(overrides: list[str]) -> str | None:
     return None
 
 
+def recorded_searchpath(overrides: list[str]) -> list[str]:
+    """``[hydra.searchpath=[...]]``, the config folders the folder of ``resume=DIR`` was made with (Hydra's record,
+    ``DIR/.hydra/hydra.yaml``), when ``overrides`` give none: a run of a task from the user's own folder
+    resumes from its folder alone; ``[]`` otherwise."""
+    from omegaconf import OmegaConf
+
+    resume = next((line.partition("=")[2] for line in reversed(overrides) if line.startswith("resume=")), "")
+    record = Path(resume) / ".hydra" / "hydra.yaml" if resume else None
+    if record is None or not record.is_file() or any(o.startswith("hydra.searchpath=") for o in overrides):
+        return []
+    try:
+        given = OmegaConf.select(OmegaConf.load(record), "hydra.overrides.hydra") or []
+    except Exception:  # noqa: BLE001 - an unreadable record: the resume's own checks say so
+        return []
+    return [str(o) for o in given if str(o).startswith("hydra.searchpath=")][-1:]
+
+
 #: The flags of a Hydra app's command line (``@hydra.main``'s), by the name argparse gives each: ``None`` for a
 #: switch, else the values it takes (``()``: any; ``info`` alone may also be given without one).
 HYDRA_FLAGS: dict[str, tuple[str, ...] | None] = {
@@ -481,4 +498,5 @@ def resumable_cli(main: Callable, kind, argv: list[str] | None = None) -> None:
         if any("resume=" in arg for arg in args.overrides):
             args.overrides = resume_overrides(args.overrides, kind)
             args.config_dir = args.config_dir or recorded_config_dir(args.overrides)  # the user's config folder
+            args.overrides = [*recorded_searchpath(args.overrides), *args.overrides]  # ... or hydra.searchpath
     run_cli(lambda: launch(main, args))

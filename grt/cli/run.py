@@ -52,6 +52,7 @@ from grt.cli._common import (
     launch,
     parse_command,
     recorded_config_dir,
+    recorded_searchpath,
     run_cli,
 )
 from grt.cli.launchers import check_launcher, unfinished_job
@@ -150,6 +151,7 @@ def cli(argv: list[str] | None = None) -> None:
         if any("resume=" in arg for arg in args.overrides):
             given, args.overrides = args.overrides, resume_overrides(args.overrides)
             args.config_dir = args.config_dir or recorded_config_dir(args.overrides)  # the user's config folder
+            args.overrides = [*recorded_searchpath(args.overrides), *args.overrides]  # ... or hydra.searchpath
             line = None if args.multirun or args.help or args.hydra_help else _finished(given)
             if line is not None:  # said before Hydra starts: not a file of the run is touched
                 print(line, flush=True)

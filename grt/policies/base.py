@@ -258,7 +258,13 @@ class EnvDriverPolicy(ABC):
 
     @abstractmethod
     def solve(self, env, seed: int):
-        """Run one episode of ``env`` (a gymnasium env over a ManiSkill ``BaseEnv``) from ``seed``."""
+        """Run one episode of ``env`` (a gymnasium env over a ManiSkill ``BaseEnv``) from ``seed``.
+
+        Returns:
+            Optionally ``{"planned": bool, "status": str}`` (or ``-1``, ManiSkill's solutions' "no plan"): a
+            failure without a plan is the trial's ``no_plan``, and a status other than ``ok`` is kept with the
+            trial (``note`` in the journal and ``evaluation.json``); anything else is ignored.
+        """
 
 
 #: the kinds of policy a task can drive, in words (:func:`policy_kind`; a task session names those it

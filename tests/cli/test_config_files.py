@@ -124,3 +124,24 @@ def test_an_argument_the_users_yaml_leaves_out_is_given_with_a_plus(tmp_path, ca
     code, _, err = app("evaluate", "--config-dir", str(tmp_path / "conf"), "policy=mine", "policy.predictor.nois=0.1",
                        capsys=capsys)
     assert code == 2 and "policy.predictor.nois is not a setting of policy.predictor" in error_line(err)
+
+
+def test_a_run_of_a_task_from_the_users_searchpath_resumes_from_its_folder_alone(tmp_path):
+    """The printed resume command failed: "Could not find 'task/mygrasp'" (hydra.searchpath was not kept)."""
+    from tests.cli.test_run_faults import _env, lines
+    from tests.runner._toy_run import TOY
+
+    conf = _task(tmp_path / "conf", "mygrasp", (ROOT / "conf" / "task" / "grasp.yaml").read_text()
+                 .replace("name: grasp", "name: mygrasp"))
+    run_dir = tmp_path / "run"
+    env = {**_env(), "GRT_TEST_INTERRUPT_AT": "3"}
+    proc = subprocess.run([sys.executable, "-m", "grt.run", f"hydra.searchpath=[file://{conf}]", "task=mygrasp",
+                           "budget=smoke", "object=can", *TOY, f"hydra.run.dir={run_dir}"], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 130, proc.stderr[-3000:]
+    command = proc.stderr.strip().splitlines()[-1].split("continue this run with: ")[1]
+    toy = {**_env(), "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    res = subprocess.run(["bash", "-c", command.replace("python", sys.executable, 1)], cwd=tmp_path, env=toy,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert lines(run_dir) == 7 and (run_dir / "summary.json").is_file()

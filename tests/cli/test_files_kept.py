@@ -44,3 +44,16 @@ def test_replay_asks_before_replacing_a_video(toy_run, tmp_path):
     assert proc.stderr.startswith(f"error: video={mine} already exists; give another video=PATH.mp4, or --overwrite")
     assert mine.read_bytes() == b"the user's own video" and snapshot(toy_run) == before
 
+
+
+def test_a_new_run_inside_a_runs_folder_is_refused_and_changes_nothing(toy_run):
+    """``hydra.run.dir=RUN/inner`` ran, and ``grt.report RUN`` then averaged the two runs."""
+    from tests.cli.test_run_faults import RUN, error_line, grt_run
+
+    before = snapshot(toy_run)
+    res = grt_run(*RUN, f"hydra.run.dir={toy_run / 'inner'}")
+    assert res.returncode == 2, res.stderr[-3000:]
+    line = error_line(res.stderr, res.stdout)
+    assert line.startswith(f"error: {toy_run / 'inner'} is inside the red-team run {toy_run.resolve()}: a new "
+                           "python -m grt.run there would mix its files"), line
+    assert snapshot(toy_run) == before and not (toy_run / "inner").exists()

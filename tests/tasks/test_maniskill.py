@@ -207,7 +207,7 @@ def test_a_policy_that_drives_the_env_itself_gets_the_candidate_and_is_judged_on
     assert done.mode == "success" and 0 < done.info["steps"] < 50
     assert driver.heights == [pytest.approx(0.026, abs=1e-4)]  # settled inside the policy's own reset
     push.set_policy(Driver(3))
-    assert push.run_trial(0).mode == "timeout"  # three steps do not push it home
+    assert push.run_trial(0).mode == "plan_ended"  # three steps do not push it home: its plan ended without success
     push.set_policy(PushToGoalPolicy())
 
 

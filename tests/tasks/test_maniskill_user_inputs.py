@@ -117,3 +117,53 @@ def test_a_refresh_is_checked_by_the_public_helper_against_the_stock_env_and_a_s
         assert row["scaled"] == pytest.approx([0.02])  # a refresh that ignores the candidate: caught
     finally:
         sys.path.remove(str(tmp_path))
+
+
+DRIVERS = '''
+from grt.policies.base import EnvDriverPolicy
+
+
+class Finishes(EnvDriverPolicy):
+    """A plan that runs to its end (three steps of nothing) without success."""
+
+    def solve(self, env, seed):
+        env.reset(seed=seed)
+        for _ in range(3):
+            env.step(env.action_space.sample() * 0)
+        return {"planned": True, "status": "ok"}
+
+
+class NoPlan(EnvDriverPolicy):
+    def solve(self, env, seed):
+        env.reset(seed=seed)
+        print("IK Failed! Cannot find valid solution.")
+        return {"planned": False, "status": "IK Failed! Cannot find valid solution."}
+
+
+class Forever(EnvDriverPolicy):
+    def solve(self, env, seed):
+        env.reset(seed=seed)
+        while True:
+            env.step(env.action_space.sample() * 0)
+'''
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+@pytest.mark.parametrize(("driver", "mode", "note"), [
+    ("Finishes", "plan_ended", None), ("NoPlan", "no_plan", "IK Failed! Cannot find valid solution."),
+    ("Forever", "timeout", "stopped after driver_step_limit=5 steps")])
+def test_a_driven_trial_is_labelled_by_how_its_plan_ended_and_keeps_its_message(user_pkg, tmp_path, capsys, driver,
+                                                                                mode, note):
+    """A task without failure flags labelled every failure of a motion planner ``timeout``, though the planner
+    had finished, and its failure message was in no output file."""
+    import json
+
+    (user_pkg / "drivers.py").write_text(DRIVERS)
+    out = tmp_path / "out"
+    code, _, err = app("evaluate", "task=push_cube", "~policy", f"+policy={{_target_:userpkg.drivers.{driver}}}",
+                       "budget.trials=1", "budget.workers=1", "+task.session.driver_step_limit=5",
+                       f"hydra.run.dir={out}", capsys=capsys)
+    assert code == 0, err[-3000:]
+    (trial,) = json.loads((out / "evaluation.json").read_text())["trials"]
+    assert trial["mode"] == mode and trial["info"].get("note") == note, trial

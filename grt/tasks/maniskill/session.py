@@ -28,10 +28,13 @@ configuration (:mod:`grt.tasks.maniskill.swap`), and judges a trial by the env's
   ``policy.solve(env, seed=seed)`` with the session's gymnasium env wrapped by a step recorder. The policy
   may reset the env itself (``env.reset(seed=seed)``: the same episode, the candidate in place, because the
   swap and the settle live inside the env's own ``_load_scene`` / ``_initialize_episode``) and steps it as
-  it likes; its return value is ignored. The trial is judged from the recorded steps exactly as a
-  closed-loop trial: success if the env reported success at any step, else the failure flags of the last
-  step (the env's ``evaluate()`` now if it took no step); a policy that takes more than
-  ``driver_step_limit`` steps is stopped (``timeout``).
+  it likes. The trial is judged from the recorded steps as a closed-loop trial: success if the env reported
+  success at any step, else the failure flags of the last step (the env's ``evaluate()`` now if it took no
+  step); a failure no flag names is ``no_plan`` when the policy said it found no plan (``-1`` or
+  ``{"planned": False}``), ``plan_ended`` when its plan ran to its end, and ``timeout`` only when it was
+  stopped after ``driver_step_limit`` steps (20 x the env's ``max_episode_steps``: ManiSkill's solutions take
+  more steps than the env's RL limit, so ``max_steps`` bounds closed-loop episodes only). The policy's last
+  message (a failed plan's status) is the trial's ``note``.
 
 **Object frames** are :mod:`grt.tasks.maniskill.geometry`'s: ``load_object`` takes GRT's frame (resting on
 z = 0, centred in x/y) and converts to the actor frame by the stock actor's constant offset.
@@ -39,7 +42,6 @@ z = 0, centred in x/y) and converts to the actor frame by the stock actor's cons
 
 from __future__ import annotations
 
-import contextlib
 import difflib
 import functools
 import gc
@@ -64,6 +66,9 @@ from grt.tasks.maniskill.swap import ActorSwap, Candidate
 log = logging.getLogger(__name__)
 
 RUNAWAY_M = 5.0  # an actor farther than this from the world origin was thrown out by the physics
+#: how a trial of a policy that drives the env ends without success, when no failure flag names it: the
+#: policy found no plan (it said so: ``-1`` or ``{"planned": False}``), or its plan ran to its end
+DRIVER_MODES = ("no_plan", "plan_ended")
 
 
 def failure_modes(flags) -> list[tuple[str, str]]:
@@ -185,7 +190,7 @@ class ManiSkillSession(EpisodeSession):
             raise TaskInputError(f"task.session.actor={actor!r} is no valid regex ({err}); give the actor's name") from None
         self.score_key, self.score_unit = str(score), str(score_unit or "")
         self.flags = failure_modes(failure_flags)
-        self.failure_modes = (*COMMON_MODES, *(m for _, m in self.flags), "timeout")
+        self.failure_modes = (*COMMON_MODES, *(m for _, m in self.flags), "timeout", *DRIVER_MODES)
         self.swap = ActorSwap(self.actor, _resolve(refresh), int(round_wedges))
         self.num_envs = int(num_envs)
         kwargs = dict(obs_mode=obs_mode, sim_backend=sim_backend, render_backend=render_backend, num_envs=self.num_envs,
@@ -322,6 +327,16 @@ class ManiSkillSession(EpisodeSession):
         """The env's last observation (of the last reset or step) as groups ``{name: (num_envs, ...)}``."""
         return {k: to_numpy(v).astype(np.float32) for k, v in _leaves(self._obs)}
 
+    def _judge_driven(self, success: bool, info: dict, said, stopped: bool) -> str:
+        """The mode of a driven trial: as :meth:`judge` (success, then the first failing flag), but a failure no
+        flag names is ``timeout`` only when the policy was stopped at ``driver_step_limit``; else ``no_plan``
+        when it said it found none, ``plan_ended`` when its plan ran to its end without success."""
+        mode = self.judge(success, info)
+        if mode != "timeout" or stopped:
+            return mode
+        planned = not (said == -1 or (isinstance(said, Mapping) and said.get("planned") is False))
+        return "plan_ended" if planned else "no_plan"
+
     def judge(self, success: bool, info: dict) -> str:
         if success:
             return "success"
@@ -367,9 +382,12 @@ class ManiSkillSession(EpisodeSession):
         seed = episodes.seeds[0]
         self._reset_batch([seed], self.rebuild_each_trial)
         recorder = StepRecorder(self.env, self, self.driver_step_limit)
+        said, stopped = None, False
         try:
-            with contextlib.suppress(StepLimit):
-                self.policy.solve(recorder, seed=seed)
+            try:
+                said = self.policy.solve(recorder, seed=seed)
+            except StepLimit:
+                stopped = True
         finally:
             episodes.steps[0] = self.steps = recorder.steps
         if recorder.error is not None:
@@ -377,7 +395,17 @@ class ManiSkillSession(EpisodeSession):
             return
         state = recorder.last or info_at(self.info_batch(self.unwrapped.get_info()), 0)
         success = recorder.success or bool(state["success"])
-        episodes.end(0, self.judge(success, state), self.score(success, state), state)
+        episodes.end(0, self._judge_driven(success, state, said, stopped), self.score(success, state),
+                     {**state, **driver_note(said, stopped, self.driver_step_limit)})
+
+
+def driver_note(said, stopped: bool, limit: int) -> dict:
+    """What a driven trial keeps of what its policy said: ``{"note": ...}`` (the planner's last message when
+    it is not ``ok``, or the step limit it was stopped at), else ``{}``."""
+    if stopped:
+        return {"note": f"stopped after driver_step_limit={limit} steps"}
+    status = str(said.get("status", "")) if isinstance(said, Mapping) else ("no plan" if said == -1 else "")
+    return {"note": status[:300]} if status and status != "ok" else {}
 
 
 def _leaves(obs, prefix: str = ""):
