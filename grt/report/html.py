@@ -167,7 +167,7 @@ def headline(run: RunFolder, score: ScoreSpec) -> list[tuple[str, str, str, str,
     drop_ci = None
     if s0 and s.get("best_ci95"):
         lo, hi = s["best_ci95"]
-        drop_ci = [1 - hi / s0, 1 - lo / s0]
+        drop_ci = [max(0.0, 1 - hi / s0), min(1.0, 1 - lo / s0)]  # a drop is in [0, 1] (0: none worse than S0)
     rows = [("S0", f(s0), _interval(s.get("s0_ci95"), f), unit, "nominal object's score on the search's episodes"),
             ("best", f(best), _interval(s.get("best_ci95"), f), unit, "lowest score the search found (rank-1 CrashShape)"),
             ("Final Drop", pct(s.get("final_drop")), _interval(drop_ci, pct), "% of S0",
@@ -225,7 +225,7 @@ def search_svg(records: list[dict], score: ScoreSpec, width: int = 560, height: 
     m = 56
     x = lambda t: m + (width - m - 12) * (t / max(iters, 1))  # noqa: E731
     y = lambda v: height - 30 - (height - 50) * (v - lo) / (hi - lo)  # noqa: E731
-    out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' class='search'>",
+    out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' viewBox='0 0 {width} {height}' class='search'>",
            f"<line x1='{m}' y1='{height - 30}' x2='{width - 12}' y2='{height - 30}' stroke='#888'/>",
            f"<line x1='{m}' y1='20' x2='{m}' y2='{height - 30}' stroke='#888'/>"]
     for v in np.linspace(lo, hi, 5):
@@ -276,7 +276,7 @@ def curve_svg(curve: list, width: int = 360, height: int = 300) -> str:
     m, n = 40, len(curve)
     x = lambda t: m + (width - m - 10) * t / max(n - 1, 1)  # noqa: E731
     y = lambda v: height - 30 - (height - 50) * v  # noqa: E731
-    out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' class='curve'>",
+    out = [f"<svg xmlns='http://www.w3.org/2000/svg' width='{width}' height='{height}' viewBox='0 0 {width} {height}' class='curve'>",
            f"<line x1='{m}' y1='{height - 30}' x2='{width - 10}' y2='{height - 30}' stroke='#888'/>",
            f"<line x1='{m}' y1='20' x2='{m}' y2='{height - 30}' stroke='#888'/>",
            f"<line x1='{m}' y1='{y(0.5)}' x2='{width - 10}' y2='{y(0.5)}' stroke='#bbb' stroke-dasharray='3 3'/>"]
@@ -312,7 +312,8 @@ def _section(title: str, body: str, anchor: str) -> str:
 
 
 def _shapes_section(run: RunFolder, page: dict) -> str:
-    """The nominal object beside each CrashShape (3D), displacement in mm, handles and anchors marked."""
+    """The nominal object once, then each CrashShape (3D), in a grid as wide as the page (one column on a phone);
+    displacement in mm, handles and anchors marked; every view turns together."""
     s = run.summary or {}
     shapes = s.get("crashshapes") or []
     nominal_path = run.path / "nominal.obj"
@@ -345,7 +346,7 @@ def _shapes_section(run: RunFolder, page: dict) -> str:
             continue
         v, f = _read_obj(obj if obj.is_file() else stl)
         parts.append((shape, v, f, stl if stl.is_file() else None))
-    out = []
+    out, cards = [], []
     if missing:
         run.problems.append(f"mesh file(s) deleted from the run folder, not shown: {', '.join(missing)}")
         out.append(f"<p class='warn'>missing mesh files (deleted?), not shown: {esc(', '.join(missing))}</p>")
@@ -369,8 +370,8 @@ def _shapes_section(run: RunFolder, page: dict) -> str:
         nominal_key = "nominal"
         meshes[nominal_key] = {"positions": _b64(nominal_v.astype(np.float32)), "faces": add_faces(faces),
                                "center": center, "size": size, "handles": handles, "anchors": anchors}
-    out.append("<p class='note'>Drag to turn, wheel to zoom (the two views of a row turn together). Colour: "
-               "displacement from the nominal object (mm), 0 to the row's largest; "
+    out.append("<p class='note'>Drag to turn, wheel to zoom (every view turns together). Colour: "
+               "displacement from the nominal object (mm), 0 to the shape's largest; "
                "<span style='color:#e00'>●</span> handles, <span style='color:#2659ff'>●</span> anchors.</p>")
     fresh = {(c["iteration"], c["candidate"]): c for c in (s.get("confirm") or {}).get("shapes", [])}
     score = ScoreSpec.from_summary(s)
@@ -399,15 +400,16 @@ def _shapes_section(run: RunFolder, page: dict) -> str:
         if shape.get("file_input_units") and (run.path / shape["file_input_units"]).is_file():
             links += (f"; <a href='{esc(shape['file_input_units'])}'>{esc(Path(shape['file_input_units']).name)}</a> "
                       f"(the input's units, {esc(shape.get('input_unit'))})")
-        nominal_canvas = (f"<div class='card'><canvas class='grt-mesh' width='340' height='340' data-mesh='nominal' "
-                          f"data-group='{key}'></canvas><div>nominal object "
-                          "<a href='nominal.obj'>nominal.obj</a></div></div>") if nominal_key else ""
         legend = _legend_svg(entry.get("vmax")) if "values" in entry else ""
-        out.append(f"<h3>rank {shape['rank']}: it{shape['iteration']}_c{shape['candidate']} — search score "
-                   f"{score.fmt(shape['score'], unit=True)}{esc(fresh_txt)}</h3>"
-                   f"<div class='row'>{nominal_canvas}<div class='card'><canvas class='grt-mesh' width='340' "
-                   f"height='340' data-mesh='{key}' data-group='{key}'></canvas><div>{links}</div>"
-                   f"<div class='note'>{esc(disp_note)}</div>{legend}</div></div>")
+        cards.append(f"<div class='card'><h3>rank {shape['rank']}: it{shape['iteration']}_c{shape['candidate']} — "
+                     f"search score {score.fmt(shape['score'], unit=True)}{esc(fresh_txt)}</h3>"
+                     f"<canvas class='grt-mesh' width='340' height='340' data-mesh='{key}' data-group='shapes'>"
+                     f"</canvas><div>{links}</div><div class='note'>{esc(disp_note)}</div>{legend}</div>")
+    if nominal_key:  # once, first: every view turns together (one group)
+        cards.insert(0, "<div class='card'><h3>nominal object</h3><canvas class='grt-mesh' width='340' height='340' "
+                        "data-mesh='nominal' data-group='shapes'></canvas><div><a href='nominal.obj'>nominal.obj</a>"
+                        "</div></div>")
+    out.append(f"<div class='grid'>{''.join(cards)}</div>")
     return "".join(out)
 
 
@@ -416,7 +418,7 @@ def _legend_svg(vmax: float | None) -> str:
         return ""
     stops = "".join(f"<stop offset='{t}' stop-color='{c}'/>" for t, c in
                     ((0, "#440154"), (0.25, "#3a528b"), (0.5, "#20908d"), (0.75, "#5dc962"), (1, "#fde725")))
-    return (f"<svg width='340' height='30'><defs><linearGradient id='lg{int(vmax * 1000)}'>{stops}</linearGradient>"
+    return (f"<svg width='340' height='30' viewBox='0 0 340 30'><defs><linearGradient id='lg{int(vmax * 1000)}'>{stops}</linearGradient>"
             f"</defs><rect x='10' y='2' width='320' height='10' fill='url(#lg{int(vmax * 1000)})'/>"
             f"<text x='10' y='26' font-size='10'>0 mm</text><text x='330' y='26' font-size='10' "
             f"text-anchor='end'>{vmax:.1f} mm</text></svg>")
@@ -466,11 +468,27 @@ def _videos_section(run: RunFolder) -> str:
 
 
 def _kv_table(d: dict) -> str:
-    rows = []
-    for k, v in d.items():
-        val = json.dumps(v) if isinstance(v, (dict, list)) else str(v)
-        rows.append(f"<tr><th class='l'>{esc(k)}</th><td class='l'>{esc(val)}</td></tr>")
-    return f"<table>{''.join(rows)}</table>"
+    """A record as a table a person reads: nested records as tables in their cell, lists of plain values
+    joined, lists of records one per line, numbers as they are; nothing escaped twice (no literal ``\\u00b2``)."""
+    rows = [f"<tr><th class='l'>{esc(str(k).replace('_', ' '))}</th><td class='l'>{_kv_value(v)}</td></tr>"
+            for k, v in d.items()]
+    return f"<table class='kv'>{''.join(rows)}</table>"
+
+
+def _kv_value(v) -> str:
+    if isinstance(v, dict):
+        return _kv_table(v) if v else "-"
+    if isinstance(v, list):
+        if all(not isinstance(x, (dict, list)) for x in v):
+            return esc(", ".join(_plain(x) for x in v)) or "-"
+        return "".join(f"<div>{_kv_value(x)}</div>" for x in v)
+    return esc(_plain(v))
+
+
+def _plain(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return "-" if v is None else str(v)
 
 
 def render_run(path: Path) -> str:

@@ -36,14 +36,15 @@ def test_the_report_draws_plays_and_stays_offline(run_copy, tmp_path):
     with Browser() as b:
         b.open(run_copy / "report.html")
         views = b.js("document.querySelectorAll('canvas.grt-mesh').length")
-        assert views == 2 * len(json.loads((run_copy / "summary.json").read_text())["crashshapes"])
-        # each CrashShape beside its nominal object, not below it (issue 40: a long note widened the card)
-        rows = b.js("""Array.from(document.querySelectorAll('canvas.grt-mesh')).map(c =>
-            [c.dataset.group, c.dataset.mesh, Math.round(c.getBoundingClientRect().top)])""")
-        tops = {}
-        for group, _, top in rows:
-            tops.setdefault(group, set()).add(top)
-        assert all(len(t) == 1 for t in tops.values()), rows
+        shapes = json.loads((run_copy / "summary.json").read_text())["crashshapes"]
+        assert views == 1 + len(shapes)  # the nominal object once, not beside every rank
+        # the shapes use the page's width: one row of cards as wide as the grid (was: two cards, half the page)
+        widths = b.js("""(() => { const g = document.querySelector('.grid'); const cards = Array.from(g.children);
+            const top = cards[0].getBoundingClientRect().top;
+            const row = cards.filter(c => Math.abs(c.getBoundingClientRect().top - top) < 2);
+            return [g.getBoundingClientRect().width, row.reduce((w, c) => w + c.getBoundingClientRect().width, 0),
+                    row.length]; })()""")
+        assert widths[2] == min(1 + len(shapes), 4) and widths[1] >= 0.85 * widths[0], widths
         drawn = b.js("Array.from(document.querySelectorAll('canvas.grt-mesh')).map(c => Number(c.dataset.drawn || 0))")
         assert all(d >= 1 for d in drawn), drawn
         # not blank: the rendered pixels of every 3D view hold more than the white background
@@ -62,3 +63,22 @@ def test_the_report_draws_plays_and_stays_offline(run_copy, tmp_path):
         assert (tmp_path / "report.png").stat().st_size > 10_000
         remote = [u for u in b.requests if not u.startswith(("file:", "data:", "about:"))]
         assert remote == [], remote
+
+
+def test_the_report_reads_on_a_phone(run_copy):
+    """At a phone's width nothing runs off the page sideways, the views fill it one per row, and the mesh
+    preparation is a table of its figures (it was raw JSON with a literal \\u00b2)."""
+    from grt.report.html import write_report
+
+    write_report(run_copy)
+    page = (run_copy / "report.html").read_text()
+    assert "\\u00b2" not in page and "Mesh preparation" in page
+    with Browser(width=390, height=844) as b:
+        b.open(run_copy / "report.html")
+        overflow = b.js("document.documentElement.scrollWidth - window.innerWidth")
+        assert overflow <= 1, overflow
+        views = b.js("""Array.from(document.querySelectorAll('canvas.grt-mesh')).map(c => {
+            const r = c.getBoundingClientRect(); return [Math.round(r.left), Math.round(r.width)]; })""")
+        assert len({left for left, _ in views}) == 1 and all(w >= 300 for _, w in views), views
+        nested = b.js("document.getElementById('mesh').nextElementSibling.querySelectorAll('table.kv').length")
+        assert nested >= 1, nested

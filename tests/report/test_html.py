@@ -167,3 +167,14 @@ def test_refused_candidates_written_null_by_the_journal_are_read_as_nan(tmp_path
     records, problem = read_journal(path)
     assert problem is None and math.isnan(records[2]["score"]) and "nonfinite" not in records[2]
     assert "<svg" in search_svg(records, ScoreSpec())
+
+
+def test_the_final_drops_interval_is_a_drop_between_0_and_100_percent():
+    """A best candidate whose interval reached above S0 printed the drop's interval as [-31.5, 100.0]."""
+    from grt.report.html import RunFolder, headline
+    from grt.scores import ScoreSpec
+
+    summary = {"s0": 0.6, "s0_ci95": [0.3, 0.85], "best_score": 0.4, "best_ci95": [0.0, 0.789], "final_drop": 1 / 3}
+    rows = headline(RunFolder(Path("."), summary, [], ""), ScoreSpec.from_summary(summary))
+    drop = next(r for r in rows if r[0] == "Final Drop")
+    assert drop[1] == "33.3" and drop[2] == "[0.0, 100.0]", drop
