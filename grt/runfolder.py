@@ -114,6 +114,10 @@ STUDY_FROM_COMMAND = ("workers", "paths")
 STUDY_WHEN_GIVEN = ("blueteam.iterations", "blueteam.val_patience", "blueteam.rered.enabled")
 STUDY_RECORD = TRAIN_RECORD
 STUDY_FOLDERS = "outputs/blueteam/<time>"
+# A robustness profile (``python -m grt.profile``): the keys a resume may set (where its trials run, the
+# collision cache, Hydra's files), with the evaluator's free keys; its shapes and episodes are its record's.
+PROFILE_FREE = ("budget.workers", "paths.cache_dir", "hydra")
+PROFILE_FOLDERS = "RUN/profile/<time> or outputs/profile/<task>/<object>/<policy>/<time>"
 _ABSENT = object()
 
 
@@ -172,6 +176,17 @@ def is_study_folder(path: str | Path) -> bool:
     """Whether ``resume=path`` can continue a ``grt.blueteam`` study there: Hydra's record of its start
     (``.hydra/config.yaml`` with a ``run`` and a ``blueteam``), and no red-team run's record."""
     return _holds_record(path, ("run", "blueteam"))
+
+
+def is_profile_folder(path: str | Path) -> bool:
+    """Whether ``resume=path`` can continue a ``grt.profile`` profile there: Hydra's record of its start
+    (``.hydra/config.yaml`` with a ``profile``), and no red-team run's record."""
+    return _holds_record(path, ("profile",))
+
+
+def refuse_unless_profile(run_dir: Path) -> None:
+    """Raise :class:`ResumeError` unless ``run_dir`` is a profile's folder (names the problem and the fix)."""
+    _refuse_unless(run_dir, is_profile_folder(run_dir), "profile", "python -m grt.profile", PROFILE_FOLDERS)
 
 
 def _refuse_unless(run_dir: Path, holds: bool, noun: str, app: str, folders: str) -> None:
@@ -386,6 +401,12 @@ class SavedRun:
         return cls._hydra(run_dir, "study")
 
     @classmethod
+    def profile(cls, run_dir: Path) -> SavedRun:
+        """Read a robustness profile's folder (``python -m grt.profile``) as :meth:`training` reads a training's."""
+        refuse_unless_profile(run_dir)
+        return cls._hydra(run_dir, "profile")
+
+    @classmethod
     def _hydra(cls, run_dir: Path, noun: str) -> SavedRun:
         """Hydra's record in ``run_dir/.hydra`` of the start of a ``noun`` (``training``, ``study``)."""
         try:
@@ -450,6 +471,9 @@ RUN = Resumable(SavedRun.load, lambda key: _under(key, RESUME_FREE) or _evaluato
 TRAINING = Resumable(SavedRun.training, lambda key: _under(key, TRAIN_FREE), "training", TRAIN_RECORD,
                      f"{', '.join(TRAIN_FREE)}.*")
 # A blue-team study (python -m grt.blueteam).
+PROFILE = Resumable(SavedRun.profile, lambda key: _under(key, PROFILE_FREE) or _evaluator_free(key), "profile",
+                    TRAIN_RECORD, f"{', '.join(PROFILE_FREE)}.*, evaluator=sim|ray and the evaluator's keys but "
+                    f"{', '.join(EVALUATOR_RESULTS)}")
 STUDY = Resumable(SavedRun.study, lambda key: _under(key, STUDY_FREE) or _evaluator_free(key), "study", STUDY_RECORD,
                   f"{', '.join(STUDY_FREE)}.*, evaluator=sim|ray and the evaluator's keys but "
                   f"{', '.join(EVALUATOR_RESULTS)}")

@@ -10,7 +10,10 @@ seeds each, for 4 handles. The largest handle displacement (unit cube) is turned
 largest extent (the unit cube's side). With smooth handles the largest surface displacement is about the
 largest handle displacement (each handle moves a region as a whole), so these mm compare with a profile's sizes.
 
-    python experiments/margins/paper_small.py   # writes experiments/margins/paper_small.json
+    python experiments/margins/paper_small.py   # writes paper_small.json and paper_small_mm.json here
+
+``paper_small_mm.json`` is ``{object: mm}`` (the most, by object name as the runs' summaries give it; the stock
+PushCube actor is ``actor``), the bands of ``python -m grt.report ... --margins-plot ... --small``.
 """
 
 from __future__ import annotations
@@ -53,6 +56,8 @@ def main() -> None:
                            "at_most": round(out["greedy"]["max_unit"] * e, 3)} for o, e in extents.items()}
     path = Path(__file__).with_name("paper_small.json")
     path.write_text(json.dumps(out, indent=1) + "\n")
+    bands = {("actor" if o == "cube_4cm" else o): v["at_most"] for o, v in out["reach_mm"].items()}
+    path.with_name("paper_small_mm.json").write_text(json.dumps(bands, indent=1) + "\n")
     print(json.dumps(out, indent=1))
 
 

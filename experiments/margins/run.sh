@@ -18,6 +18,10 @@ ONLY=${1:-}
 # budget=quick's sigma 0.06 and Smoothness-Score cap (0.087 x the object's diagonal), seed 42.
 SEARCH=(budget=quick budget.population=6 budget.iterations=5 budget.trials=8 budget.top_k=3
         budget.confirm_trials=32 budget.videos=0)
+# A worker silent past a trial's timeout is restarted; on a machine loaded by other work (load 15-18 here) a
+# grasp trial outlasted the task's own 200 s and the restarts cost more than the trials: a longer timeout (it
+# changes no result) for every command below.
+SLOW=${SLOW:-evaluator.trial_timeout=900}
 GRASP_SIZES='profile.sizes=[0.5,1,2,4,8,16]'
 PLUG_SIZES='profile.sizes=[0.125,0.25,0.5,1,2,4]'
 CUBE_SIZES='profile.sizes=[0.25,0.5,1,2,4,8]'
@@ -28,20 +32,20 @@ cell() {  # cell NAME "RUN OVERRIDES" "PROFILE OVERRIDES" [SEARCH OVERRIDES]
   [[ -n "$ONLY" && "$name" != "$ONLY"* ]] && return 0
   echo "== $name ($(date -u +%H:%M:%S))"
   if [[ -f "$dir/run_config.yaml" ]]; then  # goes on where it stopped; a finished run: "nothing to do"
-    nice -n 5 "$PY" -m grt.run "resume=$dir" || { echo "   $name: the run stopped (rc $?); the next cell"; return 0; }
+    nice -n 5 "$PY" -m grt.run "resume=$dir" "$SLOW" || { echo "   $name: the run stopped (rc $?); the next cell"; return 0; }
   else
     # shellcheck disable=SC2086
-    nice -n 5 "$PY" -m grt.run $run_args "${search[@]}" "hydra.run.dir=$dir" \
+    nice -n 5 "$PY" -m grt.run $run_args "${search[@]}" "$SLOW" "hydra.run.dir=$dir" \
       || { echo "   $name: the run stopped (rc $?); the next cell"; return 0; }
   fi
   if compgen -G "$dir/profile/*/profile.json" > /dev/null; then
     echo "   profile done: $(ls -d "$dir"/profile/*/ | tail -1)"
   elif grep -q '"crashshape_found": true' "$dir/summary.json"; then
     # shellcheck disable=SC2086
-    nice -n 5 "$PY" -m grt.profile "run=$dir" $profile_args || echo "   $name: the profile stopped (rc $?)"
+    nice -n 5 "$PY" -m grt.profile "run=$dir" $profile_args "$SLOW" || echo "   $name: the profile stopped (rc $?)"
   else  # no CrashShape: no adversarial direction; random shapes alone, same task, policy, object and handles
     # shellcheck disable=SC2086
-    nice -n 5 "$PY" -m grt.profile $run_args $profile_args budget.workers=2 \
+    nice -n 5 "$PY" -m grt.profile $run_args $profile_args "$SLOW" \
       "hydra.run.dir=$dir/profile/random-$(date -u +%Y-%m-%d_%H-%M-%S)" || echo "   $name: the profile stopped (rc $?)"
   fi
 }

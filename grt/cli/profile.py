@@ -8,7 +8,10 @@ folder (``RUN/profile/<time>`` with a run, else ``outputs/profile/<task>/<object
 ``profile.json``, ``profile.png`` and ``profile.jsonl`` (every evaluation). With a run, the run's
 ``report.html`` is written again, with the profile in it. A refused command (a run with no CrashShape, of
 another task or object, a size ladder empty, not positive or beyond what the deformer keeps plausible) is one
-``error:`` line, exit code 2, nothing written.
+``error:`` line, exit code 2, nothing written. ``resume=DIR`` continues a stopped profile in its folder with its
+own config (every evaluation in ``profile.jsonl`` is replayed, not simulated again); with it only
+``budget.workers``, the evaluator's keys but its collision ones, ``paths.cache_dir`` and ``hydra.*`` may be
+given (:data:`grt.runfolder.PROFILE`).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig
 
-from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
+from grt.cli._common import CONF_DIR, exit_on_user_error, resumable_cli
 from grt.config import ConfigError, add_resolver, at_least, validate
 
 log = logging.getLogger(__name__)
@@ -59,7 +62,7 @@ def main(cfg: DictConfig) -> None:
         check_settings(cfg.profile)
         from grt.profile.command import profile
 
-        out_dir = Path(HydraConfig.get().runtime.output_dir)
+        out_dir = Path(cfg.resume or HydraConfig.get().runtime.output_dir)
         result = profile(cfg, out_dir, given_keys(), str(HydraConfig.get().runtime.choices.get("policy")))
     print(describe(result, out_dir))
     if cfg.run:
@@ -98,6 +101,9 @@ def _report(run_dir: Path) -> None:
                     type(exc).__name__, exc, run_dir)
 
 
-def cli() -> None:
-    """``grt-profile``: a mistake in the command line or the config is one ``error:`` line, exit code 2."""
-    run_cli(main)
+def cli(argv: list[str] | None = None) -> None:
+    """``grt-profile``: a ``resume=`` becomes the profile's own command before Hydra starts; a mistake in the
+    command line or the config is one ``error:`` line, exit code 2."""
+    from grt.runfolder import PROFILE
+
+    resumable_cli(main, PROFILE, argv)

@@ -136,3 +136,23 @@ def test_the_report_lists_the_margins_and_draws_them(bar_run, tmp_path):
     assert res.returncode == 0 and out.stat().st_size > 5_000, res.stderr[-2000:]
     again = grt("grt.report", str(bar_run), "--margins-plot", str(out))
     assert again.returncode == 2 and "--overwrite" in again.stderr  # never replaced unasked
+
+
+def test_a_profile_stopped_by_ctrl_c_resumes_where_it_stopped(bar_run, tmp_path):
+    args = [f"run={bar_run}", *TOY_EVALUATOR, "profile.trials=8", "profile.shapes=2", "profile.sizes=[1,4,16]"]
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert grt("grt.profile", *args, f"hydra.run.dir={whole}").returncode == 0
+    stopped = subprocess.run([sys.executable, "-m", "grt.profile", *args, f"hydra.run.dir={cut}"], cwd=ROOT,
+                             capture_output=True, text=True, timeout=600,
+                             env={**os.environ, "GRT_TEST_INTERRUPT_AT": "4"})  # the 4th shape scored
+    assert stopped.returncode == 130 and "interrupted" in stopped.stderr, stopped.stderr[-2000:]
+    done = (cut / "profile.jsonl").read_text().splitlines()
+    assert len(done) == 3 and not (cut / "profile.json").exists()
+    again = grt("grt.profile", f"resume={cut}")
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert (cut / "profile.jsonl").read_text().splitlines()[:3] == done  # kept, not simulated again
+    first, second = (json.loads((d / "profile.json").read_text()) for d in (whole, cut))
+    for key in ("s0", "random", "adversarial", "margins", "seeds", "trials_used"):
+        assert first[key] == second[key], key
+    refused = grt("grt.profile", f"resume={cut}", "profile.trials=16")
+    assert refused.returncode == 2 and "profile.trials" in refused.stderr
