@@ -25,6 +25,7 @@ CLEARANCE_M = 0.04     # between the hand and the actor's footprint before the p
 PUSH_M = 0.10          # how far past the actor's centre the hand pushes
 FAST, SLOW = 0.02, 0.008   # m per control step: travelling, pushing
 HOLD_STEPS = 15
+LAG_M = 0.05           # the longest step the hand is asked for (m): how hard it pushes when held back
 
 
 class ProbeControlError(TaskInputError):
@@ -97,12 +98,16 @@ def push(session, seed: int) -> None:
         return action[None]
 
     for target, speed, most in waypoints(session):
+        # a virtual target moves to the waypoint at ``speed``; the hand is pulled to it by a step of up to
+        # LAG_M, so a heavy or high-friction actor is pushed harder the more it holds the hand back
+        virtual = _numpy(env.agent.tcp.pose.p).reshape(-1, 3)[0]
         for _ in range(most):
             tcp = _numpy(env.agent.tcp.pose.p).reshape(-1, 3)[0]
-            gap = target - tcp
-            if np.linalg.norm(gap) < 0.003:
+            if np.linalg.norm(target - tcp) < 0.003:
                 break
-            step = gap * min(1.0, speed / max(float(np.linalg.norm(gap)), 1e-9))
-            session.env.step(act(step))
+            ahead = target - virtual
+            virtual = virtual + ahead * min(1.0, speed / max(float(np.linalg.norm(ahead)), 1e-9))
+            gap = virtual - tcp
+            session.env.step(act(gap * min(1.0, LAG_M / max(float(np.linalg.norm(gap)), 1e-9))))
     for _ in range(HOLD_STEPS):
         session.env.step(act(np.zeros(3)))
