@@ -22,8 +22,11 @@ from grt import metrics
 from grt.console import console as wide_console
 from grt.fileio import atomic_path, write_text_atomic
 from grt.geometry.quality import shape_change
+from grt.noise_floor import noise_floor, simulated_candidates
 from grt.plan import RunPlan
 from grt.racing import search_figures, stopped
+from grt.ranking import drop_lower_bound, ranked
+from grt.report import figures
 from grt.scores import ScoreSpec, is_crash
 from grt.shrink import save_smallest
 
@@ -107,12 +110,13 @@ def input_unit(scale: float) -> str | None:
 
 
 def crash_records(records: list[dict], k: int, s0: float | None = None, margin: float = 0.0) -> list[dict]:
-    """The ``k`` lowest-scoring explored candidates (iterations >= 1), earliest first among ties; with ``s0``,
-    only the CrashShapes among them: those below ``s0`` by ``margin`` of it (:func:`grt.scores.is_crash`)."""
+    """The ``k`` best-ranked explored candidates (iterations >= 1) by the lower bound of their drop
+    (:func:`grt.ranking.ranked`); with ``s0``, only the CrashShapes among them: those below ``s0`` by ``margin``
+    of it (:func:`grt.scores.is_crash`)."""
     explored = [r for r in records if r["iteration"] >= 1 and r["score"] == r["score"]]  # not NaN
     if s0 is not None:
         explored = [r for r in explored if is_crash(r["score"], s0, margin)]
-    return sorted(explored, key=lambda r: (r["score"], r["iteration"], r["candidate"]))[:k]
+    return ranked(explored)[:k]
 
 
 def save_crashshapes(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], evaluator,
@@ -190,12 +194,15 @@ def _remove_except(folder: Path, keep: set[str], pattern: re.Pattern) -> None:
 
 
 def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s: float,
-                  confirmation: dict | None = None, shrink: dict | None = None) -> dict:
+                  confirmation: dict | None = None, shrink: dict | None = None,
+                  swap_check: dict | None = None) -> dict:
     """Compute the paper's metrics from the journal and write every artifact of the run in ``plan.run_dir``.
 
     ``confirmation`` (:func:`grt.confirm.confirm`) adds ``confirm`` and ``confirmed_final_drop`` to the
     summary and each CrashShape's fresh-episode score to ``shapes.png``; ``shrink`` (:func:`grt.shrink.shrink`)
-    adds ``shrink``, and to each shrunk CrashShape's entry ``smallest`` and its ``<stem>_smallest.stl``.
+    adds ``shrink``, and to each shrunk CrashShape's entry ``smallest`` and its ``<stem>_smallest.stl``;
+    ``swap_check`` (:mod:`grt.swapcheck`) is recorded as it is. ``noise_floor`` (:mod:`grt.noise_floor`) is
+    computed here.
     """
     from grt.report.plots import plot_curve, plot_shapes
 
@@ -216,6 +223,8 @@ def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s
         "crash_margin": margin, "crashshape_found": bool(crashes),
         "best_score": best[0]["score"] if best else None, "best_ci95": best[0].get("ci95") if best else None,
         **summ,
+        "noise_floor": noise_floor([tr["score"] for tr in nominal["trials"] if tr.get("mode") != "sim_error"],
+                                   simulated_candidates(records), budget.trials, summ["final_drop"], seed=budget.seed),
         "delta_complexity": metrics.delta_complexity(nominal["entropy"], explored)
         if nominal.get("entropy") is not None else None,
         "nominal_entropy": nominal.get("entropy"),
@@ -252,6 +261,8 @@ def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s
     if confirmation is not None:
         summary["confirm"] = confirmation
         summary["confirmed_final_drop"] = confirmation["confirmed_final_drop"]
+    if swap_check is not None:
+        summary["swap_check"] = swap_check
     notes = []
     if cannot_race:  # RedTeamLoop said so in the log; the record says it too, and nothing counts as raced
         notes.append(f"budget.racing=true: {type(evaluator).__name__} runs every trial of a candidate, so "
@@ -270,8 +281,8 @@ def write_outputs(plan: RunPlan, result, deformer, handle_set, evaluator, wall_s
     folder, other = ("crashshapes", "best") if crashes else ("best", "crashshapes")
     entries = save_crashshapes(run_dir, best, meshes, evaluator, folder=folder,
                                scale=plan.object_scale)
-    for entry, mesh in zip(entries, meshes, strict=True):  # how far each is from the nominal (issue 33 §4)
-        entry.update(shape_change(deformer.mesh, mesh))
+    for entry, mesh, rec in zip(entries, meshes, best, strict=True):  # how far each is from the nominal
+        entry.update(shape_change(deformer.mesh, mesh), drop_lower_bound=drop_lower_bound(rec, result.s0))
     summary["crashshapes"] = entries if crashes else []
     if shrink is not None and crashes:
         save_smallest(run_dir, entries, shrink, deformer, {(r["iteration"], r["candidate"]): r["theta"] for r in best})
@@ -334,12 +345,13 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     score = ScoreSpec.from_summary(summary)
     table = Table(title=f"GRT red-team: {summary['task']} / {summary['object']} "
                         f"({summary['selector']} + {summary['optimizer']})",
-                  caption=f"S0 and best: {score.label}; Final Drop, Iter@50% and AUC relative to S0")
-    for col in ("S0", "best", "Final Drop", "Iter@50%", "AUC", "ΔComplexity", "evals", "wall s"):
+                  caption=f"S0 and best: {score.label}; drops relative to S0. Confirmed drop: rank-1 on fresh "
+                          "episodes [95% interval], Holm p. Final Drop (noise floor: mean, 95th percentile)")
+    for col in ("Confirmed drop", "S0", "best", "Final Drop", "Iter@50%", "AUC", "ΔComplexity", "evals", "wall s"):
         table.add_column(col, justify="right")
     fmt = lambda v, f="{:.3f}": "-" if v is None or (isinstance(v, float) and v != v) else f.format(v)  # noqa: E731
-    table.add_row(score.fmt(summary["s0"], unit=True), score.fmt(summary["best_score"], unit=True),
-                  fmt(summary["final_drop"], "{:.1%}"),
+    table.add_row(figures.confirmed_cell(summary, "%"), score.fmt(summary["s0"], unit=True),
+                  score.fmt(summary["best_score"], unit=True), figures.floor_cell(summary, "%"),
                   metrics.iter_at_50_label(summary["iter_at_50"], summary["reached_50"]),
                   fmt(summary["auc"]), fmt(summary["delta_complexity"]), str(summary["evaluations"]),
                   fmt(summary["wall_s"], "{:.0f}"))
@@ -354,16 +366,16 @@ def print_summary(summary: dict, run_dir: Path) -> None:
         console.print(f"implausible: {invalid} of {tried} candidates ({why}), not simulated")
     if summary.get("note"):
         console.print(f"note: {summary['note']}", style="yellow", markup=False)
+    for line in (figures.swap_line(summary), figures.floor_sentence(summary)):
+        if line:
+            console.print(line, markup=False)
     conf = summary.get("confirm")
     if conf:
-        s0, shapes = conf["s0"], conf["shapes"]
         lines = [f"rank {c['rank']}: {score.fmt(c['score'], unit=True)} (search {score.fmt(c['search_score'])}), "
                  f"drop {fmt(c['drop'], '{:.1%}')}, p = {c['p_holm']:.3g} (Holm)"
-                 f"{' confirmed' if c['confirmed'] else ' not confirmed'}" for c in shapes]
-        console.print(f"confirmed on {conf['trials']} fresh episodes: S0 {score.fmt(s0, unit=True)}, "
-                      f"confirmed Final Drop (rank 1) {fmt(conf['confirmed_final_drop'], '{:.1%}')}, "
-                      f"{conf['confirmed']}/{len(shapes)} drops significant at {conf['alpha']}\n  "
-                      + "\n  ".join(lines))
+                 f"{' confirmed' if c['confirmed'] else ' not confirmed'}" for c in conf["shapes"]]
+        console.print(f"confirmed on {conf['trials']} fresh episodes: S0 {score.fmt(conf['s0'], unit=True)}; "
+                      f"{figures.confirmed_verdict(summary)}\n  " + "\n  ".join(lines), markup=False)
     shapes = summary.get("crashshapes") or summary.get("best_candidates") or []
     if shapes and "volume_change" in shapes[0]:
         console.print("shape change vs nominal: " + "; ".join(

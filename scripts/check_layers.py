@@ -32,7 +32,8 @@ LAYERS: dict[str, int] = {
     "grt.policy_server": 0,  # imports no GRT module: it is copied alone into a policy's own environment
     "grt.objects": 1,
     "grt.geometry": 2,
-    "grt.optimizers": 3, "grt.metrics": 3, "grt.scores": 3, "grt.racing": 3,
+    "grt.optimizers": 3, "grt.metrics": 3, "grt.scores": 3, "grt.racing": 3, "grt.noise_floor": 3, "grt.ranking": 3,
+    "grt.agreement": 3,
     "grt.config": 4, "grt.settings": 4, "grt.targets": 4, "grt.plan": 4,
     "grt.selectors": 5, "grt.policies": 5,
     "grt.tasks": 6,

@@ -32,6 +32,7 @@ import numpy as np
 from grt.fileio import write_text_atomic
 from grt.journal import restore
 from grt.metrics import iter_at_50_label
+from grt.report import figures
 from grt.report.margins import margins_section
 from grt.report.modes import esc, modes_section
 from grt.report.tables import ReportError, aggregate, collect
@@ -158,7 +159,8 @@ def _interval(ci, fmt) -> str:
 
 
 def headline(run: RunFolder, score: ScoreSpec) -> list[tuple[str, str, str, str, str]]:
-    """Rows (metric, value, 95% interval, unit, what it is) of the headline table."""
+    """Rows (metric, value, 95% interval, unit, what it is) of the headline table: the confirmed drop first
+    (what means something), then the search's figures with Final Drop beside its noise floor."""
     s = run.summary or _summary_from_journal(run.records)
     unit = score.unit or "success rate (0-1)"
     f = score.fmt
@@ -168,26 +170,37 @@ def headline(run: RunFolder, score: ScoreSpec) -> list[tuple[str, str, str, str,
     if s0 and s.get("best_ci95"):
         lo, hi = s["best_ci95"]
         drop_ci = [max(0.0, 1 - hi / s0), min(1.0, 1 - lo / s0)]  # a drop is in [0, 1] (0: none worse than S0)
-    rows = [("S0", f(s0), _interval(s.get("s0_ci95"), f), unit, "nominal object's score on the search's episodes"),
-            ("best", f(best), _interval(s.get("best_ci95"), f), unit, "lowest score the search found (rank-1 CrashShape)"),
-            ("Final Drop", pct(s.get("final_drop")), _interval(drop_ci, pct), "% of S0",
-             "1 - best / S0; interval: the best candidate's 95% interval with S0 fixed"),
-            ("Iter@50%", iter_at_50_label(s.get("iter_at_50"), s.get("reached_50", True)),
-             "n/a", "iterations", "first iteration whose best-so-far drop reaches 50% (a point of the search)"),
-            ("AUC", _num(s.get("auc")), "n/a", "drop x iterations (max T)", "area under the degradation curve (trapezoid rule)"),
-            ("ΔComplexity", _num(s.get("delta_complexity")), "n/a", "entropy (nats)",
-             "angular-deficit entropy of the top candidates minus the nominal's")]
+    rows = []
     conf = s.get("confirm")
+    if conf:
+        p = conf.get("confirmed_p")
+        rows.append(("Confirmed drop", pct(conf["confirmed_final_drop"]), _interval(conf.get("confirmed_drop_ci95"), pct),
+                     "% of fresh S0", f"rank-1 CrashShape on {conf['trials']} fresh episodes"
+                     + (f", Holm p = {p:.3g}" if p is not None else "") + f"; {esc(figures.confirmed_verdict(s))}"))
+    elif run.summary is not None:
+        rows.append(("Confirmed drop", "-", "n/a", "% of fresh S0", esc(figures.confirmed_cell(s))))
+    floor = figures.floor_of(s) if s else None
+    rows += [("S0", f(s0), _interval(s.get("s0_ci95"), f), unit, "nominal object's score on the search's episodes"),
+             ("best", f(best), _interval(s.get("best_ci95"), f), unit, "score of the rank-1 CrashShape (ranked by the "
+              "lower bound of its drop)"),
+             ("Final Drop", pct(s.get("final_drop")), _interval(drop_ci, pct), "% of S0",
+              "1 - best / S0; interval: the best candidate's 95% interval with S0 fixed")]
+    if floor:
+        rows.append(("noise floor of Final Drop", pct(floor["mean"]), f"95%: {pct(floor['q95'])}", "% of S0",
+                     esc(figures.floor_sentence(s))))
+    rows += [("Iter@50%", iter_at_50_label(s.get("iter_at_50"), s.get("reached_50", True)),
+              "n/a", "iterations", "first iteration whose best-so-far drop reaches 50% (a point of the search)"),
+             ("AUC", _num(s.get("auc")), "n/a", "drop x iterations (max T)", "area under the degradation curve (trapezoid rule)"),
+             ("ΔComplexity", _num(s.get("delta_complexity")), "n/a", "entropy (nats)",
+              "angular-deficit entropy of the top candidates minus the nominal's")]
     if conf:
         rows.append((f"S0, {conf['trials']} fresh episodes", f(conf["s0"]), _interval(conf.get("s0_ci95"), f), unit,
                      "nominal object re-scored on episodes the search never used"))
         for c in conf["shapes"]:
             rows.append((f"rank {c['rank']} on fresh episodes", f(c["score"]), _interval(c.get("ci95"), f), unit,
-                         f"drop {pct(c['drop'])}% of fresh S0, p = {c['p_value']:.3g}, Holm p = {c['p_holm']:.3g} "
+                         f"drop {pct(c['drop'])}% {_interval(c.get('drop_ci95'), pct)} of fresh S0, p = "
+                         f"{c['p_value']:.3g}, Holm p = {c['p_holm']:.3g} "
                          f"({'confirmed' if c['confirmed'] else 'not confirmed'} at α = {conf['alpha']})"))
-        rows.append(("Confirmed Final Drop", pct(conf["confirmed_final_drop"]), "n/a", "% of fresh S0",
-                     f"rank-1 drop on fresh episodes; {conf['confirmed']}/{len(conf['shapes'])} drops significant "
-                     f"({esc(conf.get('test', 'paired test'))})"))
     return rows
 
 
@@ -534,6 +547,10 @@ def _headline_html(run: RunFolder, score: ScoreSpec) -> str:
                    f"<td class='l note'>{e}</td></tr>" for a, b, c, d, e in headline(run, score))
     s = run.summary or {}
     extra = []
+    if figures.swap_line(s):
+        check = s["swap_check"]
+        bad = check.get("stock") is not None and not check.get("passed")
+        extra.append(f"<p class='{'warn' if bad else 'note'}'>{esc(figures.swap_line(s))}</p>")
     if s.get("note"):
         extra.append(f"<p class='warn'>note: {esc(s['note'])}</p>")
     if s:
@@ -580,13 +597,15 @@ def render_sweep(root: Path, links: dict[str, str]) -> str:
         conf = r.get("confirm") or {}
         body.append(f"<tr><td class='l'>{name}</td><td class='l'>{esc(r['task'])}</td><td class='l'>{esc(r['object'])}</td>"
                     f"<td class='l'>{esc(r.get('policy', '-'))}</td><td class='l'>{esc(r['selector'])}-{esc(r['optimizer'])}</td>"
-                    f"<td>{esc(r.get('sigma'))}</td><td>{esc(r.get('seed'))}</td><td>{score.fmt(r.get('s0'), unit=True)}</td>"
-                    f"<td>{score.fmt(r.get('best_score'), unit=True)}</td><td>{pct(r['final_drop'])}</td>"
-                    f"<td>{pct(conf.get('confirmed_final_drop'))}</td><td>{_num(r['delta_complexity'])}</td>"
+                    f"<td>{esc(r.get('sigma'))}</td><td>{esc(r.get('seed'))}</td>"
+                    f"<td>{esc(figures.confirmed_cell(r)) if conf else '-'}</td><td>{score.fmt(r.get('s0'), unit=True)}</td>"
+                    f"<td>{score.fmt(r.get('best_score'), unit=True)}</td><td>{esc(figures.floor_cell(r))}</td>"
+                    f"<td>{_num(r['delta_complexity'])}</td>"
                     f"<td>{esc(r['iter_at_50'])}</td><td>{_num(r['auc'])}</td></tr>")
     means = "".join(f"<tr><td class='l'>{esc(a['task'])}</td><td class='l'>{esc(a['policy'])}</td>"
                     f"<td class='l'>{esc(a['method'])}</td><td>{esc(a['sigma'])}</td><td>{a['runs']}</td>"
-                    f"<td>{pct(a['final_drop'])}</td><td>{_num(a['delta_complexity'])}</td>"
+                    f"<td>{pct(a['confirmed_final_drop'])}</td><td>{pct(a['final_drop'])}</td>"
+                    f"<td>{pct(a['noise_floor'])}</td><td>{_num(a['delta_complexity'])}</td>"
                     f"<td>{_num(a['iter_at_50'])}</td><td>{_num(a['auc'])}</td></tr>" for a in agg)
     fail = "".join(f"<li>{esc(p)} (see error.txt)</li>" for p in failed)
     return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
@@ -594,11 +613,11 @@ def render_sweep(root: Path, links: dict[str, str]) -> str:
             f"<h1>GRT sweep: {esc(str(root))}</h1>"
             "<h2>Per method (mean over runs, as the paper's tables)</h2>"
             "<table><tr><th class='l'>task</th><th class='l'>policy</th><th class='l'>method</th><th>σ</th><th>runs</th>"
-            "<th>Final Drop (%) ↑</th><th>ΔComplexity ↓</th><th>Iter@50% ↓</th><th>AUC ↑</th></tr>"
-            f"{means}</table><h2>Runs (each links its report)</h2>"
+            "<th>Confirmed drop (%) ↑</th><th>Final Drop (%) ↑</th><th>noise floor (%)</th><th>ΔComplexity ↓</th>"
+            f"<th>Iter@50% ↓</th><th>AUC ↑</th></tr>{means}</table><h2>Runs (each links its report)</h2>"
             "<table><tr><th class='l'>run</th><th class='l'>task</th><th class='l'>object</th><th class='l'>policy</th>"
-            "<th class='l'>method</th><th>σ</th><th>seed</th><th>S0</th><th>best</th><th>Final Drop (%)</th>"
-            "<th>Confirmed drop (%)</th><th>ΔComplexity</th><th>Iter@50%</th><th>AUC</th></tr>"
+            "<th class='l'>method</th><th>σ</th><th>seed</th><th>Confirmed drop (%) [95%] p (fresh)</th><th>S0</th>"
+            "<th>best</th><th>Final Drop (%) (noise floor)</th><th>ΔComplexity</th><th>Iter@50%</th><th>AUC</th></tr>"
             f"{''.join(body)}</table>" + (f"<h2>Failed jobs</h2><ul>{fail}</ul>" if fail else "")
             + "</body></html>")
 

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from grt.errors import UserError
 from grt.fileio import write_text_atomic
+from grt.report import figures
 from grt.scores import ScoreSpec
 
 COLUMNS = ("task", "object", "policy", "selector", "optimizer", "sigma", "seed", "tau", "score_name",
@@ -133,8 +134,9 @@ def aggregate(rows: list[dict]) -> list[dict]:
     out = []
     for (task, policy, label, sigma), rs in sorted(groups.items()):
         agg = {"task": task, "policy": policy, "method": label, "sigma": sigma, "runs": len(rs)}
-        for k in ("final_drop", "confirmed_final_drop", "delta_complexity", "iter_at_50", "auc"):
-            vals = [r[k] for r in rs if r.get(k) is not None and not (isinstance(r[k], float) and math.isnan(r[k]))]
+        for k in ("final_drop", "confirmed_final_drop", "noise_floor", "delta_complexity", "iter_at_50", "auc"):
+            vals = [(figures.floor_of(r) or {}).get("mean") if k == "noise_floor" else r.get(k) for r in rs]
+            vals = [v for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
             agg[k] = sum(vals) / len(vals) if vals else None
         out.append(agg)
     return out
@@ -142,33 +144,40 @@ def aggregate(rows: list[dict]) -> list[dict]:
 
 def markdown(rows: list[dict], agg: list[dict], failed: list[Path], waiting: list[Path] = ()) -> str:
     """Per-run table, per-method table (the paper's columns), the failed jobs and those that never finished
-    (``waiting``, :func:`unfinished`)."""
-    confirmed = any(r.get("confirm") for r in rows)
-    head, rule = ("| Confirmed drop (%) ", "---|") if confirmed else ("", "")
-    lines = [f"| task | object | policy | method | σ | seed | score | S0 | best | Final Drop (%) ↑ {head}| ΔComplexity ↓ "
-             f"| Iter@50% ↓ | AUC ↑ | implausible |", f"|---|---|---|---|---|---|---|---|---|---|{rule}---|---|---|---|"]
+    (``waiting``, :func:`unfinished`). The confirmed drop leads (the rank-1 CrashShape on fresh episodes, its
+    paired 95% interval, Holm p and how many of the k drops held); Final Drop has its noise floor beside it."""
+    lines = ["| task | object | policy | method | σ | seed | score | Confirmed drop (%) ↑ | S0 | best | Final Drop (%) ↑ "
+             "| noise floor (%) | ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ | implausible |", "|" + "---|" * 16]
     for r in rows:
         lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {method(r)} | "
                      f"{_fmt(r.get('sigma'), 'g')} | {_fmt(r.get('seed'))} | "
-                     f"{ScoreSpec.from_summary(r).label} | {score_cell(r, 's0')} | {score_cell(r, 'best_score')}{' (no CrashShape)' if r.get('crashshape_found') is False else ''} | "
-                     f"{_fmt(r['final_drop'], 'pct')} | {_confirm_cell(r) if confirmed else ''}"
-                     f"{_fmt(r['delta_complexity'])} | "
+                     f"{ScoreSpec.from_summary(r).label} | {_confirm_cell(r)} | {score_cell(r, 's0')} | "
+                     f"{score_cell(r, 'best_score')}{' (no CrashShape)' if r.get('crashshape_found') is False else ''} | "
+                     f"{_fmt(r['final_drop'], 'pct')} | {_floor_cell(r)} | {_fmt(r['delta_complexity'])} | "
                      f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} | {_implausible_cell(r)} |")
-    lines += ["", "Mean per method (* = 50% drop not reached; T reported"
-              + ("; confirmed drop: rank-1 CrashShape on fresh episodes, (n/k) drops significant" if confirmed else "")
-              + "):", "",
-              f"| task | policy | method | σ | runs | Final Drop (%) ↑ {head}| ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |",
-              f"|---|---|---|---|---|---|{rule}---|---|---|"]
+    lines += ["", "Confirmed drop: the rank-1 CrashShape's drop on fresh episodes [paired 95% interval], Holm p, "
+              "(drops confirmed / CrashShapes confirmed); noise floor: the mean (95th percentile) Final Drop of the "
+              "same search if no deformation mattered (docs/reading-results.md).", "",
+              "Mean per method (* = 50% drop not reached; T reported):", "",
+              "| task | policy | method | σ | runs | Confirmed drop (%) ↑ | Final Drop (%) ↑ | noise floor (%) "
+              "| ΔComplexity ↓ | Iter@50% ↓ | AUC ↑ |", "|" + "---|" * 11]
     for a in agg:
-        cell = f"{_fmt(a['confirmed_final_drop'], 'pct')} | " if confirmed else ""
-        lines.append(f"| {a['task']} | {a['policy']} | {a['method']} | {a['sigma']} | {a['runs']} | {_fmt(a['final_drop'], 'pct')} | "
-                     f"{cell}{_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | {_fmt(a['auc'])} |")
+        lines.append(f"| {a['task']} | {a['policy']} | {a['method']} | {a['sigma']} | {a['runs']} | "
+                     f"{_fmt(a['confirmed_final_drop'], 'pct')} | {_fmt(a['final_drop'], 'pct')} | "
+                     f"{_fmt(a['noise_floor'], 'pct')} | {_fmt(a['delta_complexity'])} | {_fmt(a['iter_at_50'])} | "
+                     f"{_fmt(a['auc'])} |")
     if failed:
         lines += ["", f"{len(failed)} failed job(s) (see error.txt):"] + [f"- {p}" for p in failed]
     if waiting:
         lines += ["", f"{len(waiting)} unfinished job(s) (no summary.json: killed, stopped or still running; "
                       "continue each with python -m grt.run resume=DIR):"] + [f"- {p}" for p in waiting]
     return "\n".join(lines)
+
+
+def _floor_cell(r: dict) -> str:
+    """``25.1 (62.5)``: the noise floor's mean and 95th percentile of a run (:func:`grt.report.figures.floor_of`)."""
+    floor = figures.floor_of(r)
+    return "-" if floor is None else f"{_fmt(floor['mean'], 'pct')} ({_fmt(floor['q95'], 'pct')})"
 
 
 def _implausible_cell(r: dict) -> str:
@@ -182,11 +191,16 @@ def _implausible_cell(r: dict) -> str:
 
 
 def _confirm_cell(r: dict) -> str:
-    """``41.7 (2/3)``: the rank-1 drop on fresh episodes and how many of the k drops are significant."""
+    """``77.8 [60.1, 90.2] p=0.001 (2/3)``: the rank-1 drop on fresh episodes, its interval and Holm p, and how
+    many of the k drops are significant; ``-`` for a run that confirmed nothing."""
     conf = r.get("confirm")
     if not conf:
-        return "- | "
-    return f"{_fmt(conf['confirmed_final_drop'], 'pct')} ({conf['confirmed']}/{len(conf['shapes'])}) | "
+        return "-"
+    ci = conf.get("confirmed_drop_ci95")
+    p = conf.get("confirmed_p", conf["shapes"][0].get("p_holm") if conf.get("shapes") else None)
+    return (f"{_fmt(conf['confirmed_final_drop'], 'pct')}"
+            + (f" [{_fmt(ci[0], 'pct')}, {_fmt(ci[1], 'pct')}]" if ci else "")
+            + (f" p={p:.2g}" if p is not None else "") + f" ({conf['confirmed']}/{len(conf['shapes'])})")
 
 
 def csv_text(rows: list[dict]) -> str:

@@ -32,8 +32,12 @@ def test_the_run_writes_a_self_contained_report(toy_run):
     # nothing fetched from anywhere: no external script, stylesheet, image or font
     assert not re.search(r"""(src|href)=['"](https?:)?//""", page)
     assert page.count("function colormap") == 1, "the viewer is embedded once per page"
-    for metric in ("S0", "Final Drop", "Iter@50%", "AUC", "ΔComplexity", "Confirmed Final Drop", "Holm p"):
+    for metric in ("S0", "Final Drop", "Iter@50%", "AUC", "ΔComplexity", "Confirmed drop", "Holm p",
+                   "noise floor of Final Drop"):
         assert metric in page, metric
+    # the confirmed drop leads the headline; the noise floor sits beside Final Drop
+    assert page.index(">Confirmed drop<") < page.index(">S0<") < page.index(">Final Drop<") \
+        < page.index(">noise floor of Final Drop<") < page.index(">Iter@50%<")
     assert f"{100 * summary['final_drop']:.1f}" in page
     assert summary["git"]["commit"] in page and summary["machine"]["python"] in page
     assert "remeshed" in page  # the mesh-preparation record

@@ -72,10 +72,10 @@ def test_report_names_each_runs_score(tmp_path, capsys):
     _summary(tmp_path / "drawer", "cabinet", 0.35, 0.05, score_name="opening", score_unit="m", ci="auto")
     rows, failed = collect(tmp_path)
     table = markdown(rows, [], failed)
-    assert "| drawer | cabinet | - | heuristic + topdm | - | - | mean opening (m) | 0.35 | 0.05 | 85.7 |" in table
-    assert "| grasp | mug | - | heuristic + topdm | - | - | success rate | 0.900 | 0.300 | 66.7 |" in table
+    assert "| drawer | cabinet | - | heuristic + topdm | - | - | mean opening (m) | - | 0.35 | 0.05 | 85.7 |" in table
+    assert "| grasp | mug | - | heuristic + topdm | - | - | success rate | - | 0.900 | 0.300 | 66.7 |" in table
     _summary(tmp_path / "new", "bowl", 0.8, 0.4, sigma=0.01, seed=7, score_name="success")  # sigma, seed
-    assert "| drawer | bowl | - | heuristic + topdm | 0.01 | 7 | success rate | 0.800 |" in markdown(
+    assert "| drawer | bowl | - | heuristic + topdm | 0.01 | 7 | success rate | - | 0.800 |" in markdown(
         collect(tmp_path)[0], [], [])
     main([str(tmp_path), "--csv", str(tmp_path / "t.csv")])
     assert "mean opening (m)" in capsys.readouterr().out
@@ -95,8 +95,8 @@ def test_report_reads_kept_copies_and_keeps_sigmas_apart(tmp_path, capsys):
     (tmp_path / "summary_notes.txt").write_text("not a summary")
     main([str(tmp_path)])
     out = capsys.readouterr().out
-    assert "| grasp | - | heuristic + topdm | 0.06 | 2 | 75.0 |" in out  # (100 + 50) / 2
-    assert "| grasp | - | heuristic + topdm | 0.001 | 1 | 10.0 |" in out
+    assert "| grasp | - | heuristic + topdm | 0.06 | 2 | - | 75.0 |" in out  # (100 + 50) / 2
+    assert "| grasp | - | heuristic + topdm | 0.001 | 1 | - | 10.0 |" in out
 
 
 def test_console_summary_names_the_score(tmp_path, capsys):

@@ -71,6 +71,10 @@ def test_a_geometry_blind_policys_search_drop_is_not_confirmed(tmp_path):
     assert res.returncode == 0, res.stderr[-2000:]
     s = summary(run_dir)
     assert s["final_drop"] >= 0.5  # the winner's curse: the minimum of 12 noisy scores
+    floor = s["noise_floor"]  # ... which the noise floor expects of a search where nothing matters
+    assert floor["candidates"] == 12 - s["invalid_candidates"] and floor["trials"] == 4
+    assert s["final_drop"] <= floor["q95"]
+    assert floor["p_value"] > 0.05 and "noise floor of Final Drop" in res.stdout
     conf = s["confirm"]
     assert conf["trials"] == 24 and len(conf["seeds"]) == 24
     assert conf["confirmed"] == 0 and not any(c["confirmed"] for c in conf["shapes"])
@@ -89,14 +93,17 @@ def test_a_shape_that_breaks_the_policy_is_confirmed_and_reported(tmp_path):
     conf = summary(run_dir)["confirm"]
     assert conf["s0"] == 1.0 and conf["confirmed"] == len(conf["shapes"]) >= 1
     assert conf["confirmed_final_drop"] > 0.5 and all(c["p_holm"] < 0.05 for c in conf["shapes"])
+    assert conf["confirmed_drop_ci95"][0] > 0.5 and conf["confirmed_p"] == conf["shapes"][0]["p_holm"]
     report = grt("grt.report", str(run_dir))
     assert report.returncode == 0 and "Confirmed drop (%)" in report.stdout
     assert f"({conf['confirmed']}/{len(conf['shapes'])})" in report.stdout
+    head = report.stdout.splitlines()[0]
+    assert head.index("Confirmed drop") < head.index("Final Drop") < head.index("noise floor")
 
 
 def test_a_finished_run_is_confirmed_by_its_resume_without_searching_again(tmp_path):
     run_dir = tmp_path / "later"
-    first = grt("grt.run", *SEARCH, "+evaluator.coin=0.6", f"hydra.run.dir={run_dir}")
+    first = grt("grt.run", *SEARCH, "+evaluator.coin=0.6", "budget.confirm_trials=0", f"hydra.run.dir={run_dir}")
     assert first.returncode == 0, first.stderr[-2000:]
     assert "confirm" not in summary(run_dir)
     journal = (run_dir / "journal.jsonl").read_bytes()
