@@ -21,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from grt import motionplanning_dir
+from grt.agreement import SwapCheckSettings
 from grt.errors import UserError
 from grt.geometry.prepare import MeshSettings
 from grt.plan import (  # noqa: F401 - the rules' vocabulary, re-exported for the apps' own settings
@@ -202,6 +203,7 @@ def make_plan(cfg, choices: Mapping | None = None) -> RunPlan:
         deformer=DeformerPlan.of(cfg.get("deformer") or {}), budget=Budget.of(cfg.budget), score=score,
         nominal_floor=floor, crash_margin=margin,
         report_videos=int(OmegaConf.select(cfg, "report.videos", default=0) or 0),
+        swap_check=SwapCheckSettings.from_config(plain(cfg.swap_check) if cfg.get("swap_check") is not None else None),
         choices=dict(choices) if choices is not None else _choices(cfg), config=without_secrets(cfg),
         record=_command_line())
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from grt.agreement import SwapCheckSettings
 from grt.geometry.deform import DEFAULT_RADIUS, deformer_options
 from grt.geometry.prepare import MeshSettings
 from grt.geometry.quality import candidate_validity
@@ -194,6 +195,8 @@ class RunPlan:
         score: the task's score spec; nominal_floor: the least S0 worth red-teaming (``None``: off).
         crash_margin: the least relative drop below S0 that makes a candidate a CrashShape.
         report_videos: CrashShapes filmed for ``report.html`` (``report.videos``).
+        swap_check: the swap check of a ManiSkill task's copy against its stock env (``swap_check``,
+            :mod:`grt.swapcheck`).
         choices: the config-group options of the run (``selector``: ``heuristic`` ...).
         config: the resolved config as a run folder and a logger keep it (a served policy's secret as given).
         record: the run's command line as ``run_config.yaml`` keeps it: ``overrides`` and ``choices``.
@@ -217,6 +220,7 @@ class RunPlan:
     nominal_floor: float | None
     crash_margin: float
     report_videos: int
+    swap_check: SwapCheckSettings = field(default_factory=SwapCheckSettings)
     choices: dict = field(default_factory=dict)
     config: dict = field(default_factory=dict)
     record: dict = field(default_factory=dict)

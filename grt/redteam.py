@@ -96,6 +96,8 @@ class RedTeamLoop:
         size_penalty, size_scale: a search for the smallest CrashShape (``budget.size_penalty``): the search is
             told ``score + size_penalty x S0 x SS / size_scale`` (SS: the Smoothness Score, m; ``size_scale``:
             the run's cap τ, m), the journal keeps the plain score; 0: off.
+        nominal: the nominal object's result when it was already scored on ``seeds`` (the swap check scores
+            it beside the stock actor, :mod:`grt.swapcheck`): journaled as it is instead of scored again.
     """
 
     def __init__(self, deformer: ShapeDeformer, optimizer: Optimizer, evaluator: Evaluator, journal: Journal,
@@ -105,13 +107,14 @@ class RedTeamLoop:
                  on_iteration: Callable[[int, list[float]], None] | None = None, ci: str = "auto",
                  on_nominal: Callable[[float], None] | None = None,
                  validity: Callable[[trimesh.Trimesh, trimesh.Trimesh], dict] | None = None,
-                 racing: Racing | None = None, size_penalty: float = 0.0, size_scale: float | None = None):
+                 racing: Racing | None = None, size_penalty: float = 0.0, size_scale: float | None = None,
+                 nominal=None):
         self.deformer, self.optimizer, self.evaluator = deformer, optimizer, evaluator
         self.size_penalty, self.size_scale = float(size_penalty), size_scale
         self.journal, self.seeds, self.iterations = journal, list(seeds), int(iterations)
         self.tau, self.complexity, self.ci = tau, complexity, ci
         self.on_candidate, self.on_iteration, self.on_nominal = on_candidate, on_iteration, on_nominal
-        self.validity, self.racing = validity, racing
+        self.validity, self.racing, self.nominal = validity, racing, nominal
         if racing is not None and not getattr(evaluator, "races", False):
             log.warning("budget.racing=true: %s runs every trial of a candidate (it cannot stop one early), "
                         "so this run races nothing; evaluator=sim, ray and gpu race", type(evaluator).__name__)
@@ -224,6 +227,9 @@ class RedTeamLoop:
         for k in range(len(todo)):
             if k not in sim:
                 finish(k, None)
+        if t == 0 and self.nominal is not None:  # already scored on these seeds (the swap check)
+            finish(0, self.nominal)
+            sim, self.evaluations = [], self.evaluations + 1
         if sim:
             meshes, on_result = [todo[k][2] for k in sim], lambda j, result: finish(sim[j], result)
             if self.racing is not None and t > 0:  # the nominal runs every trial

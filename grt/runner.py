@@ -38,6 +38,7 @@ from grt.outputs import crash_records, print_summary, save_nominal, write_output
 from grt.plan import RunPlan, dotted
 from grt.policies.base import PolicyServerError
 from grt.redteam import RedTeamLoop, RedTeamResult, episode_seeds
+from grt.report import figures
 from grt.runfolder import (
     RUN_CONFIG,
     ResumeError,
@@ -50,6 +51,7 @@ from grt.runfolder import (
 from grt.scores import ScoreSpec, check_nominal_floor
 from grt.selectors.base import HandleSet
 from grt.shrink import ShrinkSettings, ShrinkShape, shrink, shrink_seeds
+from grt.swapcheck import check_settings, swap_check
 from grt.targets import build
 from grt.tasks import check_fit, preflight, task_description, task_object
 
@@ -89,17 +91,19 @@ def red_team(plan: RunPlan) -> dict:
     with parts:
         if len(journal) < plan.budget.candidates:
             parts.start()  # one line, then the workers' start-up, outside the bar's rate and ETA
+        seeds = episode_seeds(plan.budget.seed, plan.budget.trials)  # every candidate on the same episodes
+        swap, nominal = check_swap(plan, mesh, parts.evaluator, journal, seeds)  # a disagreeing copy: no record
         save_run_config(plan)  # the run's own record, what resume= continues
         handle_set = select_handles(plan, mesh, parts.selector)
         deformer = make_deformer(plan, mesh, handle_set)
         optimizer = build(plan.optimizer, "optimizer", num_handles=len(handle_set.handles))
-        seeds = episode_seeds(plan.budget.seed, plan.budget.trials)  # every candidate on the same episodes
         with resumable(plan.run_dir):
-            result = search(plan, deformer, optimizer, parts, journal, seeds)
+            result = search(plan, deformer, optimizer, parts, journal, seeds, nominal)
             confirmation = confirm_shapes(plan, result, deformer, parts.evaluator, seeds)
             shrunk = shrink_shapes(plan, result, deformer, parts.evaluator, confirmation, seeds)
         summary = write_outputs(plan, result, deformer, handle_set, parts.evaluator,
-                                wall_s=time.perf_counter() - start, confirmation=confirmation, shrink=shrunk)
+                                wall_s=time.perf_counter() - start, confirmation=confirmation, shrink=shrunk,
+                                swap_check=swap)
         report(plan, summary, parts.logger)
     print_summary(summary, plan.run_dir)
     return summary
@@ -117,7 +121,20 @@ def prepare_object(plan: RunPlan) -> trimesh.Trimesh:
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plan.task, plan.policy, mesh, plan.object_scale)  # wrong plug, policy kind or checkpoint
     evaluator_preflight(plan.evaluator, plan.task, plan.policy)  # evaluator=gpu without CUDA, ...
+    check_settings(plan.task, plan.object, plan.swap_check)  # an override with nothing to override
     return mesh
+
+
+def check_swap(plan: RunPlan, mesh: trimesh.Trimesh, evaluator, journal: Journal,
+               seeds: list[int]) -> tuple[dict, object | None]:
+    """The swap check of a ManiSkill task (:func:`grt.swapcheck.swap_check`) on the nominal's seeds, before the
+    run's record is saved: a disagreeing copy stops the run with nothing written. Returns the check's record
+    and the nominal's result when the check scored it (the search journals it instead of scoring it again)."""
+    swap, nominal = swap_check(plan.task, plan.policy, plan.object, mesh, seeds, evaluator, plan.swap_check,
+                               plan.cache_dir, plan.evaluator, journal.get(0, 0))
+    if swap["stock"] is not None:  # (a task without a stock env: said in the summary)
+        print(figures.swap_line({"swap_check": swap}), flush=True)
+    return swap, nominal
 
 
 @dataclass
@@ -173,9 +190,10 @@ def make_deformer(plan: RunPlan, mesh: trimesh.Trimesh, handle_set: HandleSet) -
 
 
 def search(plan: RunPlan, deformer: ShapeDeformer, optimizer, parts: RunParts, journal: Journal,
-           seeds: list[int]) -> RedTeamResult:
+           seeds: list[int], nominal=None) -> RedTeamResult:
     """Algorithm 1 (:class:`grt.redteam.RedTeamLoop`) with the run's progress bar, logger and warnings; a
-    resume replays the journal's candidates."""
+    resume replays the journal's candidates. ``nominal``: the nominal's result already scored on ``seeds``
+    (the swap check's), journaled instead of scored again."""
     tau, how = plan.smoothness_cap(deformer.mesh)
     print(f"Smoothness-Score cap: {how}", flush=True)
     if journal.recovered_truncated_line:
@@ -193,7 +211,7 @@ def search(plan: RunPlan, deformer: ShapeDeformer, optimizer, parts: RunParts, j
                 logger.log_iteration(t, {"best_score": optimizer.best_score, "mean_score": float(np.mean(scores))}),
                 folding(t)),
             ci=score.ci, validity=plan.deformer.check, racing=plan.racing(), size_penalty=plan.budget.size_penalty,
-            size_scale=tau or 0.087 * float(np.linalg.norm(deformer.mesh.extents)),
+            size_scale=tau or 0.087 * float(np.linalg.norm(deformer.mesh.extents)), nominal=nominal,
             on_nominal=lambda s0: check_nominal_floor(s0, plan.nominal_floor, score, resume_command(plan.run_dir)),
         ).run()
 

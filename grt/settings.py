@@ -102,8 +102,8 @@ def _unread(key: str, section: str, name: str, known: list[str], app: str) -> st
 def check_sections(cfg: DictConfig) -> None:
     """Check the plain sections' values that are cheap to check, before anything is written: ``deformer``
     (method, lam, radius, validity, max_volume_change), ``mesh`` (:class:`grt.geometry.prepare.MeshSettings`),
-    ``report.videos`` and the task's score settings (``task.ci``, ``task.nominal_floor``,
-    ``task.crash_margin``).
+    ``report.videos``, ``swap_check`` (:class:`grt.agreement.SwapCheckSettings`) and the task's score settings
+    (``task.ci``, ``task.nominal_floor``, ``task.crash_margin``).
 
     Raises:
         UserError: one line naming the key and what it accepts.
@@ -120,6 +120,10 @@ def check_sections(cfg: DictConfig) -> None:
     videos = OmegaConf.select(cfg, "report.videos", default=0)
     if not (isinstance(videos, int) and not isinstance(videos, bool) and videos >= 0):
         raise SettingError(f"report.videos={videos!r}: give an integer >= 0 (CrashShapes filmed; 0: none)")
+    if "swap_check" in cfg:
+        from grt.agreement import SwapCheckSettings
+
+        SwapCheckSettings.from_config(cfg.get("swap_check"))
     task = cfg.get("task")
     if isinstance(task, DictConfig) and "score" in task:
         from grt.scores import ScoreSpec, crash_margin, nominal_floor

@@ -40,7 +40,7 @@ LAYERS: dict[str, int] = {
     "grt.evaluators": 7,
     "grt.journal": 8, "grt.redteam": 8, "grt.confirm": 8, "grt.outputs": 8, "grt.runfolder": 8,
     "grt.loggers": 8, "grt.runner": 8, "grt.report": 8, "grt.rerun": 8, "grt.shrink": 8,
-    "grt.sequential": 8, "grt.profile": 8,
+    "grt.sequential": 8, "grt.profile": 8, "grt.swapcheck": 8,
     "grt.rl": 9, "grt.blueteam": 9,
     "grt.bench": 10,
     "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11,

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
+from grt.agreement import SwapCheckSettings
 from grt.blueteam.core import (
     BlueTeamError,
     Geometry,
@@ -41,8 +42,10 @@ from grt.blueteam.finetune import fine_tune
 from grt.config import at_least, plain
 from grt.policies.rsl_rl import load_checkpoint
 from grt.redteam import episode_seeds
+from grt.report import figures
 from grt.runfolder import STUDY_RECORD, SavedRun, own_study_config
 from grt.scores import ScoreSpec
+from grt.swapcheck import check_settings, not_checked, swap_check
 from grt.targets import check_target, targets
 
 log = logging.getLogger("grt.blueteam")
@@ -73,6 +76,7 @@ def blueteam(cfg: DictConfig, out_dir: Path, red_team: RedTeam | None = None) ->
     checkpoint = trainable_checkpoint(policy_cfg)
     ckpt = load_checkpoint(checkpoint)
     nominal, crash, heldout = _geometries(cfg, run_cfg, run_dir, records)
+    swap = _swap_check(cfg, run_cfg, task, policy_cfg, nominal, records)
     log.info("blue-teaming %s: %d CrashShape(s) %s, %d held-out shapes", checkpoint, len(crash),
              [g.name for g in crash], len(heldout))
 
@@ -90,11 +94,30 @@ def blueteam(cfg: DictConfig, out_dir: Path, red_team: RedTeam | None = None) ->
     rows = _table_rows(Path(checkpoint).stem, crash, heldout, before, after, int(bt.eval_trials))
     write_table(out_dir, rows, ScoreSpec.from_task(run_cfg.task))
     result = {"run": str(run_dir), "checkpoint": str(fine_tuned), "rows": rows,
-              "heldout": [g.name for g in heldout]}
+              "heldout": [g.name for g in heldout], "swap_check": swap}
     if bt.rered.enabled:
         result["rered"] = rered(run_cfg, run_dir, fine_tuned, out_dir / "rered", red_team, cfg.evaluator)
     (out_dir / "blueteam.json").write_text(json.dumps(result, indent=1, default=str))
     return result
+
+
+def _swap_check(cfg: DictConfig, run_cfg: DictConfig, task: dict, policy: dict, nominal: Geometry,
+                records: list[dict]) -> dict:
+    """The swap check of the run's task (:mod:`grt.swapcheck`) on the run's nominal episodes, with the study's
+    ``swap_check`` settings: cached from the red-team run, or only the stock actor runs (the journal holds the
+    nominal's trials). A disagreeing swap stops the study before any training (one line, exit code 2)."""
+    settings = SwapCheckSettings.from_config(cfg.get("swap_check"))
+    check_settings(task, run_cfg.object, settings)
+    seeds = episode_seeds(int(run_cfg.budget.seed), int(run_cfg.budget.trials))
+    args = (task, policy, str(run_cfg.object), nominal.mesh, seeds)
+    rest = (settings, cfg.paths.cache_dir, plain(run_cfg.evaluator), next(r for r in records if r["iteration"] == 0))
+    if not_checked(task, str(run_cfg.object)) is not None or not settings.enabled:
+        swap, _ = swap_check(*args, None, *rest)  # recorded as not checked; no evaluator needed
+    else:
+        with make_evaluator(cfg, task, policy) as ev:  # its workers start only if the stock actor must run
+            swap, _ = swap_check(*args, ev, *rest)
+    log.info("%s", figures.swap_line({"swap_check": swap}))
+    return swap
 
 
 def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:

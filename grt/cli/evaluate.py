@@ -4,7 +4,9 @@ The object is scored on the same episode seeds a red-team run with the same ``bu
 this reproduces a run's nominal score S0 (or re-scores a CrashShape file). The run folder gets
 ``evaluation.json`` (every trial); the console gets the figures and, as its last line, one JSON
 object: ``score, ci95, score_name, score_unit, ci, success_rate, trials, outcomes, wall_s, startup_s,
-trials_s, trials_per_s, object, mesh_hash, saved`` (``saved``: the path of ``evaluation.json``). When every
+trials_s, trials_per_s, object, mesh_hash, swap_check, saved`` (``saved``: the path of ``evaluation.json``;
+``swap_check``: a ManiSkill task's copy against its stock env, :mod:`grt.swapcheck`, whose stock trials run
+beside the object's when the object is the task's own actor and the check is not cached). When every
 trial ended in ``sim_error`` there is no score: one ``error:`` line with the first trial's reason, exit code 2. The
 simulator workers are started first, with one line saying so; ``trials_per_s`` is the trials over
 ``trials_s``, the time after start-up that the progress bar measured, so the two rates agree. ``score`` is the task's score (the success rate of a binary task, the mean
@@ -27,6 +29,7 @@ import trimesh
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from grt.agreement import SwapCheckSettings
 from grt.cli._common import CONF_DIR, exit_on_user_error, run_cli
 from grt.config import plain, validate
 from grt.evaluators.base import NothingScoredError, check_scored, evaluator_preflight
@@ -35,9 +38,11 @@ from grt.geometry.mesh import check_object_size, load_mesh, mesh_hash
 from grt.geometry.prepare import MeshSettings
 from grt.geometry.prepare import describe as describe_preparation
 from grt.redteam import episode_seeds
+from grt.report.figures import swap_line
 from grt.scores import ScoreSpec
+from grt.swapcheck import check_settings, not_checked, swap_check
 from grt.targets import build
-from grt.tasks import check_fit, preflight, task_object
+from grt.tasks import ACTOR_OBJECT, check_fit, preflight, task_object
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +64,8 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     print("\n".join(describe_preparation(mesh)), flush=True)  # every repair and the fidelity figures
     preflight(plain(cfg.task), plain(cfg.policy), mesh, scale)  # a policy of the wrong kind: refused first
     evaluator_preflight(plain(cfg.evaluator), plain(cfg.task), plain(cfg.policy))  # evaluator=gpu without CUDA, ...
+    swap_settings = SwapCheckSettings.from_config(cfg.get("swap_check"))
+    check_settings(plain(cfg.task), ACTOR_OBJECT, swap_settings)  # an override with nothing to override
     seeds = episode_seeds(cfg.budget.seed, cfg.budget.trials)
     output_dir = Path(output_dir)
     render_dir = str(output_dir / "renders") if cfg.get("render", False) else None
@@ -71,8 +78,11 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
                render_dir=render_dir) as ev:
         startup = ev.start() if hasattr(ev, "start") else 0.0  # one line before the silent start-up
         begin = time.perf_counter()
+        swap, result = _swap_check(cfg, mesh, seeds, ev, swap_settings)  # the task's copy against its stock env
+        ran = len(seeds) * (2 if result is not None else 1)  # the object's trials, and the stock actor's with them
         # the base Evaluator interface takes meshes and seeds; the simulator's also takes known parts
-        result = (ev.evaluate([mesh], seeds) if parts is None else ev.evaluate([mesh], seeds, parts=[parts]))[0]
+        if result is None:
+            result = (ev.evaluate([mesh], seeds) if parts is None else ev.evaluate([mesh], seeds, parts=[parts]))[0]
         collision_s = ev.collision_s
         backend = ev.backend_info() if hasattr(ev, "backend_info") else None
         run_s = getattr(ev, "run_s", 0.0) or time.perf_counter() - begin  # what the progress bar timed
@@ -81,9 +91,10 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
                "mesh_hash": mesh_hash(mesh.vertices, mesh.faces),
                "mesh_preparation": mesh.metadata.get("grt_prepare"),
                "wall_s": round(wall, 3), "startup_s": round(startup, 3), "trials_s": round(run_s, 3),
-               "worker_s": round(result.wall_s, 3), "trials_per_s": round(len(seeds) / run_s, 4) if run_s else None,
+               "worker_s": round(result.wall_s, 3), "trials_per_s": round(ran / run_s, 4) if run_s else None,
                "collision_s": round(collision_s, 4),
-               "collision_parts": str(parts_dir) if parts_dir is not None else "coacd", "evaluator": backend}
+               "collision_parts": str(parts_dir) if parts_dir is not None else "coacd", "evaluator": backend,
+               "swap_check": swap}
     output_dir.mkdir(parents=True, exist_ok=True)
     record = {**summary, "seeds": seeds, "trials": [asdict(t) for t in result.trials]}
     (output_dir / "evaluation.json").write_text(json.dumps(record, indent=1, default=str))
@@ -95,6 +106,24 @@ def evaluate(cfg: DictConfig, output_dir: str | Path) -> dict:
     if render_dir and not any(Path(render_dir).glob("*.png")):
         log.warning("render=true, but the task session wrote no pictures (it has no render(path))")
     return summary
+
+
+def _swap_check(cfg: DictConfig, mesh: trimesh.Trimesh, seeds: list[int], ev, settings: SwapCheckSettings):
+    """The swap check of the task (:mod:`grt.swapcheck`) on the evaluation's seeds: ``(record, result)``, the
+    result being the object's own when the object is the task's actor and the check scored it (else ``None``).
+    For another object (a CrashShape file) the check runs with the task's own actor (cached from a red-team run
+    on the same seeds)."""
+    task, policy = plain(cfg.task), plain(cfg.policy)
+    own = str(cfg.object) == ACTOR_OBJECT
+    if not_checked(task, ACTOR_OBJECT) is not None:
+        return swap_check(task, policy, str(cfg.object), mesh, seeds, ev, settings, cfg.paths.cache_dir)[0], None
+    actor = mesh if own else load_mesh(task_object(cfg.task, ACTOR_OBJECT, cfg.paths.cache_dir),
+                                       settings=MeshSettings.from_config(cfg.get("mesh")))
+    swap, result = swap_check(task, policy, ACTOR_OBJECT, actor, seeds, ev, settings, cfg.paths.cache_dir,
+                              plain(cfg.evaluator))
+    if swap["stock"] is not None:
+        print(swap_line({"swap_check": swap}), flush=True)
+    return swap, result if own else None
 
 
 def saved_parts(spec: str, mode: str, scale: float = 1.0) -> tuple[list | None, Path | None]:
@@ -138,6 +167,8 @@ def figures(summary: dict) -> str:
         lines.append(f"success rate  {summary['success_rate']:.3f}")
     lines += ["outcomes      " + ", ".join(f"{k}: {v}" for k, v in sorted(summary["outcomes"].items())),
               _timing(summary)]
+    if swap_line(summary):
+        lines.append(swap_line(summary))
     if summary.get("saved"):
         lines.append(f"saved         {summary['saved']}  (every trial)")
     return "\n".join(lines)

@@ -97,6 +97,22 @@ class CandidateResult:
                 "outcomes": self.outcomes, "ci95": [low, high], "wall_s": self.wall_s}
 
 
+#: the metadata key of a mesh that stands for the task's stock actor (:func:`stock_actor`)
+STOCK = "grt_stock"
+
+
+def stock_actor(nominal: trimesh.Trimesh) -> trimesh.Trimesh:
+    """A "candidate" that is the task's own stock actor (the swap check, :mod:`grt.swapcheck`): the nominal
+    mesh marked so, which an evaluator with ``runs_stock`` loads as ``session.load_object(None, None)``."""
+    return trimesh.Trimesh(nominal.vertices, nominal.faces, process=False,
+                           metadata={STOCK: True, "name": "stock actor"})
+
+
+def is_stock(mesh: trimesh.Trimesh) -> bool:
+    """Whether ``mesh`` stands for the stock actor (:func:`stock_actor`)."""
+    return bool(mesh.metadata.get(STOCK))
+
+
 class NothingScoredError(UserError):
     """Every trial of an object ended in ``sim_error`` (a policy's unusable output, a simulator that cannot
     build the object...): it has no score, and nothing built on it (S0, a drop) could be trusted."""
@@ -119,6 +135,9 @@ class Evaluator(ABC):
     #: Whether :meth:`evaluate_each` stops a candidate's trials early when given ``race`` (``budget.racing``);
     #: one that does not runs every trial, and a run that asked for racing says so.
     races = False
+    #: Whether a :func:`stock_actor` mesh is run with the task's stock actor (the swap check); one that cannot
+    #: leaves the check unrun, and the record says so.
+    runs_stock = False
 
     @abstractmethod
     def evaluate(self, meshes: list[trimesh.Trimesh], seeds: list[int]) -> list[CandidateResult]:

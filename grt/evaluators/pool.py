@@ -38,7 +38,7 @@ import hydra.utils
 import numpy as np
 import trimesh
 
-from grt.evaluators.base import Job, OnTrial, TrialPool, sim_error
+from grt.evaluators.base import Job, OnTrial, TrialPool, is_stock, sim_error
 from grt.evaluators.worker_env import WorkerPathError, accept_numpy2_pickles, spawn_path, worker_path
 from grt.policies.base import PolicyInterrupted, PolicyServerError, PolicyUnavailable
 from grt.targets import worker_error
@@ -198,7 +198,10 @@ def _use_policy(session, policy: dict | None, using: dict) -> str | None:
 
 def _load(session, mesh: trimesh.Trimesh | None, parts: list[np.ndarray] | None) -> str | None:
     try:
-        session.load_object(mesh, parts)
+        if mesh is not None and is_stock(mesh):  # the swap check: the task's own stock actor, not a mesh
+            session.load_object(None, None)
+        else:
+            session.load_object(mesh, parts)
     except Exception as exc:
         return f"load_object failed: {type(exc).__name__}: {exc}"
     return None

@@ -55,6 +55,8 @@ class SimEvaluator(PoolEvaluator):
         threads: CPU threads per worker (BLAS/OpenMP, torch, lavapipe); ``None``: library defaults.
     """
 
+    runs_stock = True  # the workers load a stock_actor() mesh as the stock actor (grt.evaluators.pool._load)
+
     def __init__(self, task: dict, policy: dict, workers: int = 2, collision: str = "fast",
                  nominal: trimesh.Trimesh | None = None, coacd: dict | None = None,
                  cache_dir: str | None = None, max_hull_vertices: int = MAX_HULL_VERTICES,

@@ -78,22 +78,19 @@ def floor_cell(summary: dict, unit: str = "") -> str:
 
 
 def floor_sentence(summary: dict) -> str:
-    """What the floor says about this run's Final Drop, in one sentence (empty without a floor)."""
+    """What the floor says about this run's Final Drop, in one line under 200 characters (empty without a floor)."""
     floor = floor_of(summary)
     if not floor:
         return ""
     fd, p = summary.get("final_drop"), floor.get("p_value")
+    head = (f"noise floor of Final Drop: {pct(floor['mean'])}% (95th percentile {pct(floor['q95'])}%) for "
+            f"{floor['candidates']} candidates x {floor['trials']} trials at this S0")
     if not fd:
-        return (f"noise floor of Final Drop: {pct(floor['mean'])}% on average ({pct(floor['q95'])}% at the 95th "
-                f"percentile) for {floor['candidates']} candidates x {floor['trials']} trials; this search found no drop")
-    where = ("below the noise floor: luck alone gives as much; it says nothing about the geometry"
-             if fd is not None and fd <= floor["mean"] else
-             "above the floor's mean but within its 95%: luck gives as much in more than 1 search of 20"
-             if fd is not None and fd <= floor["q95"] else "above the noise floor's 95th percentile")
-    return (f"noise floor of Final Drop: {pct(floor['mean'])}% on average, {pct(floor['q95'])}% at the 95th "
-            f"percentile, for {floor['candidates']} candidates x {floor['trials']} trials against this S0"
-            + (f"; P(null >= {pct(fd)}%) = {p:.2g}" if p is not None and fd is not None else "")
-            + f": Final Drop is {where}")
+        return head + "; this search found no drop"
+    where = ("below the floor: luck alone gives as much" if fd <= floor["mean"] else
+             "within the floor's 95%: luck gives it in over 1 search in 20" if fd <= floor["q95"] else
+             "above the floor's 95th percentile")
+    return head + (f"; P(null >= {pct(fd)}%) = {p:.2g}" if p is not None else "") + f": {where}"
 
 
 def swap_line(summary: dict) -> str:

@@ -8,6 +8,7 @@ The run needs the set-up's folder (``make test`` makes it); without it that test
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -29,20 +30,50 @@ needs_setup = pytest.mark.skipif(not (MP_DIR / "numpy").is_dir(),
                                  reason=f"no numpy 1.26 in {MP_DIR}: run `make motionplanning` (make test does)")
 
 
-def _evaluate(*args: str) -> subprocess.CompletedProcess:
+def _evaluate(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "grt.evaluate", "task=pick_cube", "policy=motion_planner", *args],
-                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+                          cwd=ROOT, capture_output=True, text=True, timeout=600, env={**os.environ, **(env or {})})
+
+
+class _NoSimulation:
+    """An evaluator that must not be asked for anything: the swap check is cached."""
+
+    runs_stock = True
+
+    def evaluate(self, meshes, seeds):
+        raise AssertionError("the cached swap check simulated again")
 
 
 @needs_setup
 @pytest.mark.sim
 def test_the_planner_solves_pick_cube_in_its_own_numpy_workers(tmp_path):
-    proc = _evaluate("task.session.control_mode=pd_joint_pos", "budget.trials=2", "budget.workers=1",
-                     f"hydra.run.dir={tmp_path}")
+    """... and the box task's copy is checked against the stock env on the same seeds (the nominal's trials once
+    more), printed, recorded and cached, so the next command with the same task, policy, object and seeds does
+    not pay it again."""
+    args = ["task.session.control_mode=pd_joint_pos", "budget.trials=2", "budget.workers=1"]
+    proc = _evaluate(*args, f"hydra.run.dir={tmp_path / 'out'}", env={"GRT_CACHE_DIR": str(tmp_path / "cache")})
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
-    saved = json.loads((tmp_path / "evaluation.json").read_text())
+    saved = json.loads((tmp_path / "out" / "evaluation.json").read_text())
     assert saved["outcomes"] == {"success": 2}, saved["outcomes"]  # ManiSkill's solution: 10/10 on the stock cube
     assert all(t["info"]["steps"] > 50 for t in saved["trials"])  # the planner drove the env (plans of ~100 steps)
+    check = saved["swap_check"]
+    assert check["passed"] and not check["cached"] and check["agreement"] == 1.0 and check["seeds"] == saved["seeds"]
+    assert check["swap"]["modes"] == [t["mode"] for t in saved["trials"]]
+    assert ("swap check: stock 1.000 vs nominal swap 1.000 success on the same 2 seeds, agreement 1.000 (min 0.75), "
+            "McNemar p = 1: passed") in proc.stdout
+
+    from grt.agreement import SwapCheckSettings
+    from grt.cli.evaluate import _swap_check
+    from grt.geometry.mesh import load_mesh
+    from grt.geometry.prepare import MeshSettings
+    from grt.tasks import task_object
+    from tests.runner.conftest import compose_run
+
+    cfg = compose_run(["task=pick_cube", "policy=motion_planner", *args, f"paths.cache_dir={tmp_path / 'cache'}"],
+                      config_name="evaluate")  # the command's config, as it loads the cube
+    mesh = load_mesh(task_object(cfg.task, "actor", cfg.paths.cache_dir), settings=MeshSettings.from_config(cfg.mesh))
+    again, result = _swap_check(cfg, mesh, saved["seeds"], _NoSimulation(), SwapCheckSettings())
+    assert again["cached"] and again["passed"] and result is None
 
 
 def test_without_the_setup_the_planner_is_one_line_naming_it(tmp_path, capsys):

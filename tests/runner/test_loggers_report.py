@@ -79,7 +79,7 @@ def test_report_cli_tables_and_csv(tmp_path):
     (tmp_path / "2_x" / "error.txt").write_text("boom")
     out = subprocess.run([sys.executable, "-m", "grt.report", str(tmp_path), "--csv", str(tmp_path / "t.csv")],
                          capture_output=True, text=True, check=True).stdout
-    assert "| grasp | - | heuristic + topdm | - | 2 | 40.0 |" in out  # old summaries name no policy (nor σ)
+    assert "| grasp | - | heuristic + topdm | - | 2 | - | 40.0 |" in out  # old summaries name no policy (nor σ)
     assert "1 failed job" in out
     assert "| 2.000 | 4 / 10 |" in out and "| 2.000 | - |" in out  # refused candidates; "-": not counted
     assert "| 2.000 | not checked |" in out  # deformer.validity=false: 0 refused would read as "all plausible"
