@@ -18,6 +18,7 @@ crash-safe, checksummed journal as the search's), so a killed confirmation resum
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -155,6 +156,7 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
         (per CrashShape: ``rank, iteration, candidate, search_score, score, ci95, drop, p_value, p_holm,
         confirmed``), ``confirmed_final_drop`` and ``confirmed`` (how many shapes passed the test).
     """
+    start = time.perf_counter()
     seeds = confirm_seeds(seed, trials, search_seeds)
     journal = Journal(Path(run_dir) / f"confirm-{trials}.jsonl")
 
@@ -215,7 +217,7 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
             "confirmed_final_drop": shapes[0]["drop"] if shapes else None,
             "confirmed_drop_ci95": shapes[0]["drop_ci95"] if shapes else None,
             "confirmed_p": shapes[0]["p_holm"] if shapes else None,
-            "interval": INTERVAL,
+            "interval": INTERVAL, "wall_s": round(time.perf_counter() - start, 1),
             "confirmed": sum(s["confirmed"] for s in shapes)}
 
 

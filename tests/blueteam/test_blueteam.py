@@ -31,7 +31,10 @@ def test_fine_tune_writes_table3_and_a_loadable_checkpoint_then_resumes(red_team
                                      "heldout_before", "heldout_after"}
     assert all(0.0 <= rows[0][k] <= 1.0 for k in ("orig", "blue", "nominal_before", "nominal_after"))
     assert "| Orig. | Blue. |" in (out_dir / "table3.md").read_text()
-    rered = json.loads((out_dir / "blueteam.json").read_text())["rered"]  # same budget and seed as the run
+    study = json.loads((out_dir / "blueteam.json").read_text())
+    assert study["swap_check"]["stock"] is None  # GRT's own insertion task: recorded, not invented
+    assert study["swap_check"]["note"].startswith("no stock env: task=insertion")
+    rered = study["rered"]  # same budget and seed as the run
     assert set(rered["before"]) == set(rered["after"]) and rered["after"]["s0"] is not None
     assert (out_dir / "rered" / "summary.json").exists()
     policy = RslRlPolicy(str(out_dir / "policy.pt"), task="insertion")
