@@ -118,6 +118,8 @@ STUDY_FOLDERS = "outputs/blueteam/<time>"
 # collision cache, Hydra's files), with the evaluator's free keys; its shapes and episodes are its record's.
 PROFILE_FREE = ("budget.workers", "paths.cache_dir", "hydra")
 PROFILE_FOLDERS = "RUN/profile/<time> or outputs/profile/<task>/<object>/<policy>/<time>"
+# Apps whose folder may be inside a red-team run's: a profile of the run (RUN/profile/<time>, no summary.json).
+INSIDE_RUN_APPS = ("profile",)
 _ABSENT = object()
 
 
@@ -871,13 +873,15 @@ def check_new_folder(run_dir: Path, before: set[str], app: str, log_file: str) -
     record and ``log_file``), or is a folder the app continues in place (a ``grt.blueteam`` study, a
     ``grt.train`` training).
 
-    A folder inside a red-team run's folder is refused too, whatever it holds.
+    A folder inside a red-team run's folder is refused too, whatever it holds, but a robustness profile's
+    (:data:`INSIDE_RUN_APPS`): ``python -m grt.profile run=RUN`` writes ``RUN/profile/<time>`` (no summary, so
+    ``grt.report RUN`` reads it as the run's profile, never as another run).
 
     Raises:
         FolderNotEmptyError: names the folder, what it holds (or the run it is inside) and what to do.
     """
     outer = next((p for p in Path(run_dir).resolve().parents if is_run_folder(p)), None)
-    if outer is not None:  # its files would join the run's (grt.report OUTER would average both)
+    if outer is not None and app not in INSIDE_RUN_APPS:  # its files would join the run's (grt.report would average)
         raise FolderNotEmptyError(f"{run_dir} is inside the red-team run {outer}: a new python -m grt.{app} there "
                                   "would mix its files with that run's (python -m grt.report would read both as one "
                                   "folder's); give a folder outside it (hydra.run.dir=PATH)")
