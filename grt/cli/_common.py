@@ -116,7 +116,23 @@ def group_options(group: str) -> list[str]:
     for source in GlobalHydra.instance().config_loader().get_sources():
         if source.scheme() != "structured" and source.available() and source.is_group(group):
             options.update(source.list(group, ObjectType.CONFIG))
+    options.update(_searchpath_options(group))
     return sorted(options)
+
+
+def _searchpath_options(group: str) -> set[str]:
+    """The options of ``group`` in the folders ``hydra.searchpath=[file://DIR]`` adds: Hydra records them in the
+    running app's config sources, not in the loader's (a user's own tasks, listed by ``--help`` too)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return set()
+    found: set[str] = set()
+    for source in HydraConfig.get().runtime.config_sources or []:
+        folder = Path(str(source.path)) / group if source.schema == "file" else None
+        if folder is not None and folder.is_dir():
+            found.update(p.stem for p in folder.glob("*.yaml"))
+    return found
 
 
 def config_groups() -> str:

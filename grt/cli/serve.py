@@ -25,6 +25,7 @@ from grt.config import plain, validate
 from grt.errors import TERMINATED, Terminated
 from grt.policies.base import BatchedPolicy, GraspObservation, GraspPolicy, PolicyServerError
 from grt.policy_server import PolicyServer
+from grt.runfolder import LOCK, discard_new
 from grt.targets import build
 from grt.tasks import session_class
 
@@ -109,6 +110,14 @@ def main(cfg: DictConfig) -> None:
         print("stopped", flush=True)
     finally:
         server.shutdown()
+        _discard_if_empty(Path(HydraConfig.get().runtime.output_dir))
+
+
+def _discard_if_empty(folder: Path) -> None:
+    """A server leaves no folder (one per start piled up under ``outputs/serve/``): its log is on the console
+    (``conf/serve.yaml``); a folder with something in it (a log file the user configured) stays."""
+    if folder.is_dir() and not any(p.name != LOCK for p in folder.iterdir()):
+        discard_new(folder)
 
 
 def cli() -> None:

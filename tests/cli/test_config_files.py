@@ -145,3 +145,11 @@ def test_a_run_of_a_task_from_the_users_searchpath_resumes_from_its_folder_alone
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-3000:]
     assert lines(run_dir) == 7 and (run_dir / "summary.json").is_file()
+
+
+def test_help_lists_the_tasks_of_the_users_searchpath(tmp_path, capsys):
+    """``--help`` with ``hydra.searchpath=[file://MYDIR]`` left the user's own tasks out (``--config-dir`` had them)."""
+    conf = _task(tmp_path / "conf", "mine", PUSH_CUBE)
+    code, out, _ = app("run", f"hydra.searchpath=[file://{conf}]", "--help", capsys=capsys)
+    line = next(line for line in out.splitlines() if line.startswith("task: "))
+    assert code == 0 and "mine" in line.split("(now")[0].split(", "), line

@@ -206,3 +206,12 @@ def test_the_documented_server_of_your_own_act_function_runs(tmp_path):
         action = policy.act({"state": np.ones((2, 24), np.float32), "cloud": np.zeros((2, 500, 3), np.float32)})
         assert action.shape == (2, 6) and policy.name.startswith("my-insertion-policy")
         policy.close()
+
+
+@pytest.mark.slow
+def test_a_server_leaves_no_folder_behind(tmp_path):
+    """Each start left ``outputs/serve/<time>/serve.log`` behind (its one line: the URL it printed)."""
+    with Served("policy=insertion_state", "serve.port=0", cwd=tmp_path) as server:
+        server.proc.send_signal(signal.SIGINT)  # how a server is stopped by hand
+        assert server.proc.wait(timeout=60) == 0
+    assert not any((tmp_path / "outputs" / "serve").iterdir()) if (tmp_path / "outputs" / "serve").exists() else True
