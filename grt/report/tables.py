@@ -156,7 +156,7 @@ def markdown(rows: list[dict], agg: list[dict], failed: list[Path], waiting: lis
                      f"{_fmt(r['final_drop'], 'pct')} | {_floor_cell(r)} | {_fmt(r['delta_complexity'])} | "
                      f"{r['iter_at_50']}{'' if r.get('reached_50') else '*'} | {_fmt(r['auc'])} | {_implausible_cell(r)} |")
     lines += ["", "Confirmed drop: the rank-1 CrashShape's drop on fresh episodes [paired 95% interval], Holm p, "
-              "(drops confirmed / CrashShapes confirmed); noise floor: the mean (95th percentile) Final Drop of the "
+              "(n/k: drops confirmed of the k CrashShapes re-scored); noise floor: the mean (95th percentile) Final Drop of the "
               "same search if no deformation mattered (docs/reading-results.md).", "",
               "Mean per method (* = 50% drop not reached; T reported):", "",
               "| task | policy | method | σ | runs | Confirmed drop (%) ↑ | Final Drop (%) ↑ | noise floor (%) "
