@@ -8,7 +8,8 @@ naming both figures and the ways on; ``swap_check.accept=true`` goes on and the 
 
 A measurement that passed is cached under ``<cache_dir>/swapcheck/`` by everything it depends on (the task's
 config, the policy's config and checkpoint file, the nominal mesh, the seeds, the collision settings and the
-source of GRT's ManiSkill task code), so repeated runs of the same task, policy, object and seeds pay it once.
+source of GRT's task, policy and collision code), so repeated runs of the same task, policy, object and seeds
+pay it once.
 
 Tasks without a stock env (GRT's own grasp, insertion and drawer tasks), a nominal object other than the
 task's own actor, and an evaluator that cannot load the stock actor are recorded as not checked, with why.
@@ -158,9 +159,10 @@ def _file_digest(path) -> str | None:
 
 
 def _code_digest() -> str:
-    """The digest of GRT's ManiSkill task code and collision geometry: a change there may change outcomes."""
+    """The digest of GRT's task, policy and collision code: a change there may change a trial's outcome."""
     root = Path(__file__).resolve().parent
-    files = sorted((root / "tasks" / "maniskill").glob("*.py")) + [root / "evaluators" / "collision.py"]
+    files = sorted((root / "tasks").rglob("*.py")) + sorted((root / "policies").rglob("*.py")) + \
+        [root / "evaluators" / "collision.py"]
     digest = hashlib.sha256()
     for f in files:
         digest.update(f.name.encode() + f.read_bytes())
