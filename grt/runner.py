@@ -267,10 +267,12 @@ def shrink_shapes(plan: RunPlan, result: RedTeamResult, deformer: ShapeDeformer,
                           c["score"], tuple(c["ci95"]), confirmation["trials"]) for c in confirmed]
     fresh = shrink_seeds(plan.budget.seed, confirmation["trials"], seeds, confirmation["seeds"])
     levels = 1 + len(shapes) * len(settings.ladder())
+    start = time.perf_counter()
     with progress(levels, f"shrink (nominal, then up to {levels - 1} levels of {len(shapes)} CrashShapes)",
                   "level") as bar:
         out = shrink(plan.run_dir, shapes, deformer, evaluator, fresh, settings, binary=plan.score.binary,
                      ci=plan.score.ci, validity=plan.deformer.check, on_level=lambda: bar.update(1))
+    out["wall_s"] = round(time.perf_counter() - start, 1)  # this session's (a resume replays the journal)
     log.info("shrink: %d simulated trials over %d levels", out["trials_used"],
              sum(s["levels_tested"] for s in out["shapes"]))
     return out
