@@ -122,16 +122,15 @@ class RunReplayer:
 
     def __init__(self, run_dir: Path, here: bool = False):
         import trimesh
-        from omegaconf import OmegaConf
 
-        from grt.config import plain
+        from grt.config import saved_plan
         from grt.evaluators.collision import make_collision
-        from grt.geometry.deform import ShapeDeformer, deformer_options
-        from grt.runfolder import load_run_config
+        from grt.geometry.deform import ShapeDeformer
+        from grt.runfolder.record import load_run_config
         from grt.selectors.base import HandleSet
 
         self.run_dir = Path(run_dir)
-        self.cfg = load_run_config(self.run_dir)
+        self.plan = saved_plan(load_run_config(self.run_dir), self.run_dir)
         for name in ("nominal.obj", "handles.json"):
             if not (self.run_dir / name).is_file():
                 raise ReplayError(f"{self.run_dir / name} is missing (deleted?): the candidate's mesh cannot be "
@@ -140,12 +139,11 @@ class RunReplayer:
         self.nominal = self._nominal(trimesh.load(self.run_dir / "nominal.obj", process=False, force="mesh"))
         self.notes: list[str] = []
         hs = HandleSet.from_json((self.run_dir / "handles.json").read_text())
-        self.deformer = ShapeDeformer(self.nominal, hs.handles, hs.anchors, **deformer_options(self.cfg.deformer))
-        ev = self.cfg.evaluator
-        self.collision = make_collision(ev.get("collision", "fast"), self.nominal,
-                                        OmegaConf.to_container(ev.coacd) if ev.get("coacd") else None,
+        self.deformer = ShapeDeformer(self.nominal, hs.handles, hs.anchors, **self.plan.deformer.options)
+        ev = self.plan.evaluator
+        self.collision = make_collision(ev.get("collision", "fast"), self.nominal, ev.get("coacd") or None,
                                         ev.get("cache_dir"), ev.get("max_hull_vertices", 64))
-        self.task, self.policy = plain(self.cfg.task), plain(self.cfg.policy)
+        self.task, self.policy = self.plan.task, self.plan.policy
         self._session, self._loaded = None, None
         from grt.evaluators.worker_env import worker_path
 
@@ -156,22 +154,18 @@ class RunReplayer:
         hash (bit for bit the mesh the search deformed), else ``nominal.obj`` (the same to ~1e-15 m, which
         the deformation carries to ~1e-13 m: outcomes agree, the journal's 1e-9-rounded hashes may not)."""
         from grt.geometry.mesh import load_mesh, mesh_hash
-        from grt.geometry.prepare import MeshSettings
 
         want = (self.records.get((0, 0)) or {}).get("mesh_hash")
         try:
-            from omegaconf import OmegaConf
-
             from grt.tasks import task_object
 
-            spec = task_object(self.cfg.task, self.cfg.object, OmegaConf.select(self.cfg, "paths.cache_dir",
-                                                                                default="~/.cache/grt"))
-            mesh = load_mesh(spec, scale=self.cfg.get("object_scale", 1.0),
-                             settings=MeshSettings.from_config(self.cfg.mesh) if self.cfg.get("mesh") else None)
+            plan = self.plan
+            mesh = load_mesh(task_object(plan.task, plan.object, plan.cache_dir), scale=plan.object_scale,
+                             settings=plan.mesh)
             if want and mesh_hash(mesh.vertices, mesh.faces) == want and len(mesh.vertices) == len(saved.vertices):
                 return mesh
         except Exception as exc:  # noqa: BLE001 - a moved mesh file: nominal.obj is the record
-            log.info("replay: the object %s does not load again (%s); using nominal.obj", self.cfg.object, exc)
+            log.info("replay: the object %s does not load again (%s); using nominal.obj", self.plan.object, exc)
         return saved
 
     def record(self, iteration: int, candidate: int) -> dict:
@@ -268,14 +262,14 @@ class _ChildReplayer:
     def __init__(self, run_dir: Path):
         import multiprocessing as mp
 
-        from grt.config import plain
+        from grt.config import saved_plan
         from grt.evaluators.worker_env import spawn_path, worker_path
-        from grt.runfolder import load_run_config
+        from grt.runfolder.record import load_run_config
 
         ctx = mp.get_context("spawn")
         self.conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=_replay_child, args=(str(run_dir), child), daemon=True)
-        with spawn_path(worker_path(plain(load_run_config(run_dir).policy))):
+        with spawn_path(worker_path(saved_plan(load_run_config(run_dir), Path(run_dir)).policy)):
             self.proc.start()
         child.close()
 

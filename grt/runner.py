@@ -2,7 +2,7 @@
 
 :func:`run` parses the settings once into a :class:`grt.plan.RunPlan` (:func:`grt.config.make_plan`), locks
 the run folder and calls :func:`red_team`, the paper's flow in named steps: the nominal object
-(:func:`prepare_object`), the run's classes (:func:`build_parts`), its record (:mod:`grt.runfolder`), the
+(:func:`prepare_object`), the run's classes (:func:`build_parts`), its record (:mod:`grt.runfolder.record`), the
 handles (:func:`select_handles`), the deformation model (:func:`make_deformer`), the search
 (:func:`search`, Algorithm 1 in :class:`grt.redteam.RedTeamLoop`), the confirmation of its CrashShapes on
 fresh episodes (:func:`confirm_shapes`, ``budget.confirm_trials`` > 0), the shrink of the confirmed ones to
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from grt.config import make_plan, plain
+from grt.config import make_plan
 from grt.confirm import confirm
 from grt.console import progress
 from grt.evaluators.base import NothingScoredError, evaluator_preflight
@@ -39,11 +39,11 @@ from grt.plan import RunPlan, dotted
 from grt.policies.base import PolicyServerError
 from grt.redteam import RedTeamLoop, RedTeamResult, episode_seeds
 from grt.report import figures
-from grt.runfolder import (
+from grt.runfolder.lock import locked
+from grt.runfolder.record import (
     RUN_CONFIG,
     ResumeError,
     load_run_config,
-    locked,
     refuse_unless_run,
     resume_command,
     save_run_config,
@@ -302,7 +302,7 @@ def nothing_to_do(run_dir: Path, plan: RunPlan) -> str | None:
         if not journal.read_bytes().endswith(b"\n"):  # empty, or an interrupted last line
             return None
         records = Journal(journal).records
-        saved = plain(load_run_config(run_dir))
+        saved = load_run_config(run_dir)
     except Exception:  # noqa: BLE001 - a missing or broken file: the resume itself goes on or names it
         return None
     if len(records) < plan.budget.candidates or any(dotted(plan.config, k) != dotted(saved, k) for k in AFTER_SEARCH):

@@ -1,7 +1,7 @@
 """The classes a config names with ``_target_`` (policy, task session, selector, optimizer, evaluator, logger,
 a user's own among them): checked before anything is written, and built with one-line errors.
 
-:func:`check_targets` runs in :func:`grt.config.validate`, each app's first step: every ``_target_`` of the
+:func:`check_target` runs in :func:`grt.config.validate`, each app's first step: every ``_target_`` of the
 composed config must import, and every key of its node must be an argument its class takes, so a class
 Python cannot find, or a misspelled argument, is refused in one line before a folder is saved or a worker
 started. :func:`build` instantiates a node as Hydra does; a constructor that raises is one line naming the
@@ -20,10 +20,7 @@ import os
 import tempfile
 import time
 import traceback
-from collections.abc import Iterator
 from pathlib import Path
-
-from omegaconf import DictConfig, ListConfig
 
 from grt.errors import UserError
 
@@ -35,34 +32,6 @@ HOW_TO_IMPORT = ("make it importable: install your package (pip install -e YOUR_
 class ClassError(UserError):
     """A class named by ``_target_`` that cannot be imported, is given an argument it does not take, or
     whose constructor raised; the message names the config key, the class and the fix."""
-
-
-def targets(cfg, path: str = "") -> Iterator[tuple[str, DictConfig]]:
-    """``(key, node)`` of every node with a ``_target_`` in ``cfg`` (Hydra's own ``hydra`` node left out),
-    outermost first; ``key`` is the dotted path (``policy``, ``task.session``, ``train.bc.expert``)."""
-    if isinstance(cfg, DictConfig):
-        if "_target_" in cfg:
-            yield path, cfg
-        for key in cfg:
-            if path == "" and key == "hydra":
-                continue
-            child = cfg._get_node(key)
-            if isinstance(child, (DictConfig, ListConfig)) and not child._is_missing() and not child._is_none():
-                yield from targets(child, f"{path}.{key}" if path else str(key))
-    elif isinstance(cfg, ListConfig):
-        for i, child in enumerate(cfg._iter_ex(resolve=False)):
-            if isinstance(child, (DictConfig, ListConfig)):
-                yield from targets(child, f"{path}[{i}]")
-
-
-def check_targets(cfg) -> None:
-    """Refuse a ``_target_`` that does not import, or a key its class does not take (:func:`check_target`).
-
-    Raises:
-        ClassError: one line naming the key, the class and the fix.
-    """
-    for key, node in targets(cfg):
-        check_target(key, node)
 
 
 def check_target(key: str, node, arguments: bool = True) -> None:

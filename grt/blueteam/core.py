@@ -58,14 +58,14 @@ def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
         BlueTeamError: not a finished red-team run folder.
     """
     from grt.journal import Journal
-    from grt.runfolder import RUN_CONFIG, is_run_folder, load_run_config
+    from grt.runfolder.record import RUN_CONFIG, is_run_folder, load_run_config
 
     run_dir = Path(run_dir)
     journal = run_dir / "journal.jsonl"
     if not is_run_folder(run_dir) or not journal.exists() or not (run_dir / "handles.json").exists():
         raise BlueTeamError(f"{run_dir} is not a red-team run folder (it needs {RUN_CONFIG}, handles.json and "
                             "journal.jsonl): give run=outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>")
-    return load_run_config(run_dir), Journal(journal).records
+    return OmegaConf.create(load_run_config(run_dir)), Journal(journal).records
 
 
 def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tuple:

@@ -9,7 +9,7 @@ pooled), ``scores.json`` (every geometry before and after, per trial), ``table3.
 (the paper's Table 3 columns plus held-out shapes), ``blueteam.json`` and, with
 ``blueteam.rered.enabled``, a re-red-team run of the fine-tuned policy under ``rered/`` with the original
 run's budget and seed. Started again in the same folder, a killed study continues; a resume
-(``resume=DIR``) goes on with the study's own config, :func:`resumed_config`.
+(``resume=DIR``) goes on with the study's own config (:func:`grt.cli.blueteam.resumed_config`).
 """
 
 from __future__ import annotations
@@ -43,7 +43,6 @@ from grt.config import at_least, plain
 from grt.policies.rsl_rl import load_checkpoint
 from grt.redteam import episode_seeds
 from grt.report import figures
-from grt.runfolder import STUDY_RECORD, SavedRun, own_study_config
 from grt.scores import ScoreSpec
 from grt.swapcheck import check_settings, not_checked, swap_check
 from grt.targets import check_target, targets
@@ -118,29 +117,6 @@ def _swap_check(cfg: DictConfig, run_cfg: DictConfig, task: dict, policy: dict, 
             swap, _ = swap_check(*args, ev, *rest)
     log.info("%s", figures.swap_line({"swap_check": swap}))
     return swap
-
-
-def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
-    """The config a resume of the study in ``out_dir`` goes on with: its record, with the free keys of this
-    command (:func:`grt.runfolder.own_study_config`).
-
-    Says in one line (console and ``blueteam.log``) when the record is an earlier resume's (a folder whose
-    ``.hydra`` a resume rewrote, before ``grt.blueteam`` kept the start's record): the study goes on with
-    that record, the config it last ran with, as its files were last written. And when a
-    ``blueteam.iterations`` given would train longer a fine-tune that is finished (``policy.pt`` there): it
-    is not trained again.
-    """
-    own = own_study_config(cfg)
-    saved = SavedRun.study(Path(cfg.resume))
-    if not saved.started:
-        log.warning("%s is the record of an earlier resume (made before grt.blueteam kept the record of a "
-                    "study's start): the study goes on with that record (run=%s)", Path(cfg.resume) / STUDY_RECORD,
-                    own.run)
-    recorded = OmegaConf.select(saved.config, "blueteam.iterations", default=None)
-    if (out_dir / "policy.pt").exists() and recorded is not None and int(own.blueteam.iterations) != int(recorded):
-        log.warning("blueteam.iterations=%s: the fine-tune is finished (policy.pt in %s), it is not trained again",
-                    own.blueteam.iterations, out_dir)
-    return own
 
 
 def _check(bt: DictConfig, red_team: RedTeam | None) -> None:

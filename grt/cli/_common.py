@@ -45,10 +45,9 @@ from grt.cli.launchers import NO_SLURM, no_slurm  # registers slurm.yaml's resol
 from grt.config import BudgetSchema, add_resolver, budget_hint, unknown_budget_key
 from grt.errors import INTERRUPTED, TERMINATED, OutputError, Terminated, UserError
 from grt.fileio import write_bytes_atomic
-from grt.runfolder import (  # also registers the resume_or resolver of hydra.run.dir
-    discard_new,
-    resume_overrides,
-)
+from grt.runfolder.lock import discard_new
+from grt.runfolder.record import resume_or
+from grt.runfolder.resume import resume_overrides
 from grt.targets import takes
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # grt/
@@ -155,6 +154,7 @@ def config_groups() -> str:
 
 add_resolver("grt_config_groups", config_groups)
 add_resolver("grt_about", running_about)
+add_resolver("resume_or", resume_or)  # hydra.run.dir: a resumed run's own folder, else a new one
 
 
 def find_user_error(exc: BaseException, also: tuple[type[BaseException], ...] = ()) -> BaseException | None:
@@ -177,7 +177,7 @@ def exit_on_user_error(*also: type[BaseException]):
     """Turn a user error (or one of the types ``also``) into ``error: <message>`` on stderr and exit code 2,
     Ctrl-C into one line and exit code 130, SIGTERM (:class:`grt.errors.Terminated`) into one line and exit code
     143. Inside a Hydra app, a folder this command made and saved nothing in is removed, and the line says so
-    (:func:`grt.runfolder.discard_new`)."""
+    (:func:`grt.runfolder.lock.discard_new`)."""
     try:
         yield
     except KeyboardInterrupt as exc:
@@ -196,7 +196,7 @@ def exit_on_user_error(*also: type[BaseException]):
 
 
 def _discard_run_folder() -> str:
-    """:func:`grt.runfolder.discard_new` of the running Hydra app's folder (``""`` outside one)."""
+    """:func:`grt.runfolder.lock.discard_new` of the running Hydra app's folder (``""`` outside one)."""
     from hydra.core.hydra_config import HydraConfig
     from hydra.types import RunMode
 
@@ -507,7 +507,7 @@ def launch(app: Callable[[], object], args: argparse.Namespace) -> None:
 
 def resumable_cli(main: Callable, kind, argv: list[str] | None = None) -> None:
     """Run the Hydra app ``main`` from the command line, a ``resume=DIR`` first checked and made the folder's
-    own command for its ``kind`` (:data:`grt.runfolder.TRAINING`, ``STUDY``) before Hydra starts, as
+    own command for its ``kind`` (:data:`grt.runfolder.resume.TRAINING`, ``STUDY``) before Hydra starts, as
     ``grt-run`` does (:func:`grt.cli.run.cli`)."""
     args = parse_command(argv)
     with exit_on_user_error():

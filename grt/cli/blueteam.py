@@ -7,13 +7,13 @@ its CrashShapes (paper Table 3); a Hydra app.
     python -m grt.blueteam resume=outputs/blueteam/<time> blueteam.iterations=300 blueteam.val_patience=10
 
 The work and the folder's files: :func:`grt.blueteam.study.blueteam`. The folder is made and locked before
-Hydra writes there (:class:`grt.runfolder.RunFolderCallback`): a second study in it (the same ``resume=``) is
+Hydra writes there (:class:`grt.cli.callbacks.RunFolderCallback`): a second study in it (the same ``resume=``) is
 refused with one line naming the first's PID, exit code 2.
 
 ``resume=DIR`` alone is the whole command to continue a study, with its own config, ``run=`` included:
-Hydra's record of its start, ``DIR/.hydra/config.yaml`` (:func:`grt.runfolder.own_study_config`). :func:`cli`
+Hydra's record of its start, ``DIR/.hydra/config.yaml`` (:func:`grt.runfolder.resume.own_study_config`). :func:`cli`
 checks DIR and the command before Hydra starts and hands Hydra the study's own overrides: only the keys of
-:data:`grt.runfolder.STUDY_FREE` may be given with it (``workers``, ``blueteam.iterations`` to fine-tune
+:data:`grt.runfolder.resume.STUDY_FREE` may be given with it (``workers``, ``blueteam.iterations`` to fine-tune
 longer, or shorter, a study not yet finished — give it again on each later resume, the record keeps the
 start's —, ``blueteam.val_patience`` likewise, ``blueteam.rered.enabled``, ``paths.cache_dir``, ``hydra.*``), and ``evaluator=sim|ray`` and the evaluator's
 keys but its collision ones; any other override that would change the study is one ``error:`` line naming
@@ -25,16 +25,22 @@ goes on with that record, the config it last ran with, and a line saying so.
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
-from grt.config import validate  # also registers schemas and resolvers
-from grt.runfolder import STUDY, ResumeError, discard_new, resume_or  # registers resume_or
+from grt.config import plain, validate  # also registers schemas and resolvers
+from grt.config.records import ConfigView
+from grt.runfolder.lock import discard_new
+from grt.runfolder.record import STUDY_RECORD, ResumeError, resume_or
+from grt.runfolder.resume import STUDY, SavedRun, own_study_config
+
+log = logging.getLogger("grt.blueteam")
 
 
 @hydra.main(config_path=CONF_DIR, config_name="blueteam", version_base="1.3")
@@ -46,7 +52,7 @@ def main(cfg: DictConfig) -> None:
             if not cfg.resume:  # before torch and the simulator are imported: a refused command is quick
                 validate(cfg)  # the evaluator's class imports and takes its keys, nothing unread
             from grt.blueteam.core import BlueTeamError  # torch and the simulator: not for a refused command
-            from grt.blueteam.study import blueteam, resumed_config
+            from grt.blueteam.study import blueteam
             from grt.runner import run as red_team
 
             if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
@@ -73,6 +79,30 @@ def main(cfg: DictConfig) -> None:
         print(f"re-red-team: Final Drop {r['before']['final_drop']} -> {r['after']['final_drop']}, "
               f"Iter@50% {r['before']['iter_at_50']} -> {r['after']['iter_at_50']}")
     print(f"files in {out_dir}")
+
+
+def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
+    """The config a resume of the study in ``out_dir`` goes on with: its record, with the free keys of this
+    command (:func:`grt.runfolder.resume.own_study_config`).
+
+    Says in one line (console and ``blueteam.log``) when the record is an earlier resume's (a folder whose
+    ``.hydra`` a resume rewrote, before ``grt.blueteam`` kept the start's record): the study goes on with
+    that record, the config it last ran with, as its files were last written. And when a
+    ``blueteam.iterations`` given would train longer a fine-tune that is finished (``policy.pt`` there): it
+    is not trained again.
+    """
+    overrides = list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
+    own = OmegaConf.create(own_study_config(str(cfg.resume), plain(cfg), overrides))
+    saved = SavedRun.study(Path(cfg.resume))
+    if not saved.started:
+        log.warning("%s is the record of an earlier resume (made before grt.blueteam kept the record of a "
+                    "study's start): the study goes on with that record (run=%s)", Path(cfg.resume) / STUDY_RECORD,
+                    own.run)
+    recorded = ConfigView(saved.config).get("blueteam.iterations")
+    if (out_dir / "policy.pt").exists() and recorded is not None and int(own.blueteam.iterations) != int(recorded):
+        log.warning("blueteam.iterations=%s: the fine-tune is finished (policy.pt in %s), it is not trained again",
+                    own.blueteam.iterations, out_dir)
+    return own
 
 
 def cli(argv: list[str] | None = None) -> None:

@@ -11,7 +11,7 @@ trial ended in ``sim_error`` there is no score: one ``error:`` line with the fir
 simulator workers are started first, with one line saying so; ``trials_per_s`` is the trials over
 ``trials_s``, the time after start-up that the progress bar measured, so the two rates agree. ``score`` is the task's score (the success rate of a binary task, the mean
 opening of a drawer task...), its interval by the task's ``ci`` setting (:mod:`grt.scores`). The run folder
-is made and locked before Hydra writes there (:class:`grt.runfolder.RunFolderCallback`): a second process
+is made and locked before Hydra writes there (:class:`grt.cli.callbacks.RunFolderCallback`): a second process
 given the same folder is refused with one line naming the first's PID, exit code 2.
 """
 

@@ -104,6 +104,6 @@ def _report(run_dir: Path) -> None:
 def cli(argv: list[str] | None = None) -> None:
     """``grt-profile``: a ``resume=`` becomes the profile's own command before Hydra starts; a mistake in the
     command line or the config is one ``error:`` line, exit code 2."""
-    from grt.runfolder import PROFILE
+    from grt.runfolder.resume import PROFILE
 
     resumable_cli(main, PROFILE, argv)

@@ -52,7 +52,7 @@ def check_run(run: Path) -> None:
         ReplayError: names the folder and what to do.
     """
     from grt.rerun import ReplayError
-    from grt.runfolder import is_run_folder, resume_command
+    from grt.runfolder.record import is_run_folder, resume_command
 
     if (run / "journal.jsonl").is_file():
         return

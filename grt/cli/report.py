@@ -29,7 +29,7 @@ from grt.report.tables import (
     unfinished,
     update_readmes,
 )
-from grt.runfolder import is_run_folder, resume_command
+from grt.runfolder.record import is_run_folder, resume_command
 
 
 def _margins_plot(args) -> None:

@@ -20,8 +20,8 @@ edited since the start are refused. Ctrl-C ends a run with one line naming the c
 (exit code 130), and so does SIGTERM, how schedulers and ``timeout`` stop a job (exit code 143).
 
 Every refusal is one ``error: ...`` line on stderr (exit code 2); a run refused before it saved anything
-leaves no folder behind (:func:`grt.runfolder.discard_new`). The folder is made and locked before Hydra
-writes into it (:class:`grt.runfolder.RunFolderCallback`): a second process in it is refused, naming the
+leaves no folder behind (:func:`grt.runfolder.lock.discard_new`). The folder is made and locked before Hydra
+writes into it (:class:`grt.cli.callbacks.RunFolderCallback`): a second process in it is refused, naming the
 first's PID, and a new run starts only in a new or empty folder (never over a run's record or the user's files). A full disk or a folder that cannot be written
 mid-run is one line naming the disk and the command that continues the run (exit code 1). A sweep's job
 that fails writes ``error.txt`` in its folder (with the command that continues it, if it had begun) and the
@@ -41,7 +41,6 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
@@ -57,20 +56,13 @@ from grt.cli._common import (
 )
 from grt.cli.launchers import check_launcher, unfinished_job
 from grt.cli.sweeps import STARTED, sweep_end
-from grt.config import make_plan, validate
+from grt.config import plain, saved_plan, validate
+from grt.config.records import parse_overrides
 from grt.errors import INTERRUPTED, TERMINATED, Terminated
 from grt.plan import Budget
-from grt.runfolder import (
-    SHRINK_KEYS,
-    discard_new,
-    interrupted,
-    is_run_folder,
-    load_run_config,
-    own_config,
-    resume_command,
-    resume_overrides,
-    storage_error,
-)
+from grt.runfolder.lock import discard_new
+from grt.runfolder.record import interrupted, is_run_folder, load_run_config, resume_command, storage_error
+from grt.runfolder.resume import SHRINK_KEYS, own_config, resume_overrides
 from grt.runner import AFTER_SEARCH, nothing_to_do, run
 
 log = logging.getLogger("grt.run")
@@ -80,8 +72,9 @@ log = logging.getLogger("grt.run")
 def main(cfg: DictConfig) -> float:
     """Hydra entry point; returns Final Drop (NaN for a failed job of a sweep, which goes on)."""
     logging.raiseExceptions = False  # a full disk ends the run with one line, not a traceback per log record
-    if cfg.resume:
-        cfg = own_config(cfg)
+    if cfg.resume:  # the run's own config, with what this command may change (grt.runfolder.resume)
+        own = own_config(str(cfg.resume), plain(cfg))
+        cfg = cfg if own is None else OmegaConf.create(own)
     run_dir = Path(cfg.resume or cfg.paths.output_dir)
     try:
         validate(cfg)  # budget ranges, +budget keys, optimizer settings: refused before any simulation
@@ -122,18 +115,19 @@ def _finished(overrides: list[str]) -> str | None:
     """:func:`grt.runner.nothing_to_do` for ``resume=DIR`` with ``overrides`` (checked by ``resume_overrides``),
     or ``None``: the run's own config with the ``budget.confirm_trials`` and shrink settings given; a setting made after the
     search (``report``, ``budget.videos``, ``logger``) given is work for the run itself to judge."""
-    parsed = OverridesParser.create().parse_overrides(overrides)
-    run_dir = Path(next(o for o in reversed(parsed) if o.key_or_group == "resume").value())
-    cfg = load_run_config(run_dir)
+    parsed = parse_overrides(overrides)
+    run_dir = Path(next(o for o in reversed(parsed) if o.key == "resume").value)
+    config = load_run_config(run_dir)
+    budget = config["budget"]
     for key in SHRINK_KEYS:  # a run saved before the shrink existed: this command's defaults
-        if OmegaConf.select(cfg, key, default=None) is None:
-            OmegaConf.update(cfg, key, getattr(Budget, key.split(".")[1]), merge=False)
+        if budget.get(key.split(".")[1]) is None:
+            budget[key.split(".")[1]] = getattr(Budget, key.split(".")[1])
     for o in parsed:
-        if any(o.key_or_group == k or o.key_or_group.startswith((f"{k}.", f"{k}/")) for k in AFTER_SEARCH):
+        if any(o.key == k or o.key.startswith((f"{k}.", f"{k}/")) for k in AFTER_SEARCH):
             return None
-        if o.key_or_group in ("budget.confirm_trials", *SHRINK_KEYS):
-            OmegaConf.update(cfg, o.key_or_group, o.value(), merge=False)
-    return nothing_to_do(run_dir, make_plan(cfg))
+        if o.key in ("budget.confirm_trials", *SHRINK_KEYS):
+            budget[o.key.split(".")[1]] = o.value
+    return nothing_to_do(run_dir, saved_plan(config, run_dir))
 
 
 def cli(argv: list[str] | None = None) -> None:

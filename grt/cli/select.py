@@ -11,7 +11,7 @@ With ``probe.sigmas=[...]`` it also answers, before any simulation, at which σ 
 object: :func:`probe_plausibility` deforms each search's first iteration at each σ and counts the
 candidates ``grt.run`` would refuse as implausible (``probe.json``, and a table on screen). A
 mistake (unknown object, bad mesh, missing API key, unwritable folder, a folder another GRT process holds:
-:class:`grt.runfolder.RunFolderCallback` locks it before Hydra writes there) is one ``error:`` line and exit
+:class:`grt.cli.callbacks.RunFolderCallback` locks it before Hydra writes there) is one ``error:`` line and exit
 code 2.
 """
 

@@ -11,9 +11,9 @@ The trained policy is the run folder's ``policy.pt``; ``train.export=PATH`` copi
 replacing a shipped policy (under ``grt/policies/checkpoints``) needs ``train.overwrite_shipped=true``.
 
 ``resume=DIR`` alone is the whole command to continue a training, with its own config: Hydra's record of
-its start, ``DIR/.hydra/config.yaml`` (:func:`grt.runfolder.own_training_config`). :func:`cli` checks DIR
+its start, ``DIR/.hydra/config.yaml`` (:func:`grt.runfolder.resume.own_training_config`). :func:`cli` checks DIR
 and the command before Hydra starts and hands Hydra the training's own overrides: only the keys of
-:data:`grt.runfolder.TRAIN_FREE` may be given with it (``train.iterations`` to train longer — give it again
+:data:`grt.runfolder.resume.TRAIN_FREE` may be given with it (``train.iterations`` to train longer — give it again
 on each later resume, the record keeps the start's —, ``train.save_interval``, ``train.workers``,
 ``train.export``, ``train.overwrite_shipped``, ``eval_trials``, ``logger``, ``paths.cache_dir``,
 ``hydra.*``); any other override that would change the training is one ``error:`` line (exit code 2),
@@ -28,16 +28,22 @@ The work and the run folder's files: :func:`grt.rl.policy_training.train_policy`
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
-from grt.config import validate  # also registers schemas and resolvers
-from grt.runfolder import TRAINING, ResumeError, discard_new, resume_or
+from grt.config import plain, validate  # also registers schemas and resolvers
+from grt.config.records import parse_overrides
+from grt.runfolder.lock import discard_new
+from grt.runfolder.record import TRAIN_RECORD, ResumeError, resume_or
+from grt.runfolder.resume import TRAIN_FROM_COMMAND, TRAINING, SavedRun, own_training_config
+
+log = logging.getLogger("grt.train")
 
 
 @hydra.main(config_path=CONF_DIR, config_name="train_policy", version_base="1.3")
@@ -47,10 +53,7 @@ def main(cfg: DictConfig) -> float:
         try:
             if not cfg.resume:
                 validate(cfg)  # every class imports and takes its keys, nothing unread: before any file or torch
-            from grt.rl.policy_training import (  # torch: not for a refused command
-                resumed_config,
-                train_policy,
-            )
+            from grt.rl.policy_training import train_policy  # torch: not for a refused command
 
             if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
                 resume = Path(resume_or(cfg.resume, ""))
@@ -90,6 +93,44 @@ def training_success(result: dict, patience) -> str:
         return "no training episode ended, so no training success"
     return (f"training success {last:.2f} over the last {window} iteration{'s' if window != 1 else ''} (no best: "
             f"that needs train.patience={patience} iterations in a row)")
+
+
+def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
+    """The config a resume of the training in ``out_dir`` trains with: its record, with the free keys of this
+    command (:func:`grt.runfolder.resume.own_training_config`); says in one line (console and the run's log)
+    when the folder has no ``last.pt`` and training starts at iteration 0.
+
+    A folder whose ``.hydra`` a resume rewrote, before ``grt.train`` kept the start's record, holds the
+    record of that resume, which need not be what its ``last.pt`` was trained with (a ``resume=DIR`` alone
+    then composed the default task): the task, training config and object come from ``last.pt`` (the free
+    ``train.*`` keys this command gives), and a line says so.
+    """
+    from grt.rl.train import read_checkpoint  # torch: only for a resume
+
+    own = OmegaConf.create(own_training_config(str(cfg.resume), plain(cfg)))
+    last = out_dir / "last.pt"
+    if not last.exists():
+        log.warning("resume=%s: no last.pt there (it is saved every train.save_interval=%s iterations, and "
+                    "the training stopped before its first save): nothing was saved yet, so training starts "
+                    "at iteration 0", cfg.resume, own.train.save_interval)
+    if SavedRun.training(Path(cfg.resume)).started:
+        return own
+    rewritten = f"{Path(cfg.resume) / TRAIN_RECORD} is the record of an earlier resume (made before grt.train " \
+                "kept the record of a training's start)"
+    trained = read_checkpoint(last).get("grt", {}) if last.exists() else {}
+    if not {"task_cfg", "train_cfg"} <= set(trained):
+        log.warning("%s: continuing with that record", rewritten)
+        return own
+    given = {o.key for o in parse_overrides(list(HydraConfig.get().overrides.task)
+                                            if HydraConfig.initialized() else []) or []}
+    command = {key.removeprefix("train."): OmegaConf.select(own, key) for key in TRAIN_FROM_COMMAND
+               if key.startswith("train.") and key in given}
+    own.task = trained["task_cfg"]
+    own.train = {**trained["train_cfg"], **command}
+    own.object = trained.get("object", own.object)
+    log.warning("%s: continuing with the task, training config and object last.pt was trained with (task %s, "
+                "train %s, object %s)", rewritten, own.task.name, own.train.name, own.object)
+    return own
 
 
 def cli(argv: list[str] | None = None) -> None:

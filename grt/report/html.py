@@ -36,7 +36,7 @@ from grt.report import figures
 from grt.report.margins import margins_section
 from grt.report.modes import esc, modes_section
 from grt.report.tables import ReportError, aggregate, collect
-from grt.runfolder import resume_command
+from grt.runfolder.record import resume_command
 from grt.scores import ScoreSpec
 
 REPORT = "report.html"

@@ -10,7 +10,7 @@ optimizer state) is the trained policy; ``train.export=PATH`` copies it to PATH 
 a shipped policy (a file under ``grt/policies/checkpoints``, what ``conf/policy/<name>.yaml`` points at)
 is replaced only with ``train.overwrite_shipped=true`` as well, checked before any training.
 
-A resume (``resume=DIR``) trains with the training's own config, :func:`resumed_config`.
+A resume (``resume=DIR``) trains with the training's own config (:func:`grt.cli.train.resumed_config`).
 """
 
 from __future__ import annotations
@@ -20,9 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from hydra.core.hydra_config import HydraConfig
-from hydra.core.override_parser.overrides_parser import OverridesParser
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from grt.config import plain
 from grt.errors import OutputError, check_output_file
@@ -40,12 +38,10 @@ from grt.rl.train import (
     export_policy,
     finished,
     plot_curve,
-    read_checkpoint,
     train,
     write_json,
 )
 from grt.rl.vec_env import Shape, TaskVecEnv
-from grt.runfolder import TRAIN_FROM_COMMAND, TRAIN_RECORD, SavedRun, own_training_config
 from grt.targets import build
 from grt.tasks import TaskInputError, check_fit, preflight, session_class, task_object
 
@@ -126,42 +122,6 @@ def check_trainable(task: dict) -> None:
     raise TaskInputError(f"task={task.get('name')} ({cls.__name__}) runs {runs}: python -m grt.train trains a "
                          "closed-loop PPO policy, for a task whose episodes it steps (task=insertion, task=drawer, "
                          "a ManiSkill task such as task=push_cube)")
-
-
-def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
-    """The config a resume of the training in ``out_dir`` trains with: its record, with the free keys of this
-    command (:func:`grt.runfolder.own_training_config`); says in one line (console and the run's log) when
-    the folder has no ``last.pt`` and training starts at iteration 0.
-
-    A folder whose ``.hydra`` a resume rewrote, before ``grt.train`` kept the start's record, holds the
-    record of that resume, which need not be what its ``last.pt`` was trained with (a ``resume=DIR`` alone
-    then composed the default task): the task, training config and object come from ``last.pt`` (the free
-    ``train.*`` keys this command gives), and a line says so.
-    """
-    own = own_training_config(cfg)
-    last = out_dir / "last.pt"
-    if not last.exists():
-        log.warning("resume=%s: no last.pt there (it is saved every train.save_interval=%s iterations, and "
-                    "the training stopped before its first save): nothing was saved yet, so training starts "
-                    "at iteration 0", cfg.resume, own.train.save_interval)
-    if SavedRun.training(Path(cfg.resume)).started:
-        return own
-    rewritten = f"{Path(cfg.resume) / TRAIN_RECORD} is the record of an earlier resume (made before grt.train " \
-                "kept the record of a training's start)"
-    trained = read_checkpoint(last).get("grt", {}) if last.exists() else {}
-    if not {"task_cfg", "train_cfg"} <= set(trained):
-        log.warning("%s: continuing with that record", rewritten)
-        return own
-    given = {o.key_or_group for o in OverridesParser.create().parse_overrides(
-        list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else [])}
-    command = {key.removeprefix("train."): OmegaConf.select(own, key) for key in TRAIN_FROM_COMMAND
-               if key.startswith("train.") and key in given}
-    own.task = trained["task_cfg"]
-    own.train = {**trained["train_cfg"], **command}
-    own.object = trained.get("object", own.object)
-    log.warning("%s: continuing with the task, training config and object last.pt was trained with (task %s, "
-                "train %s, object %s)", rewritten, own.task.name, own.train.name, own.object)
-    return own
 
 
 def _export(cfg: DictConfig, train_cfg: dict, mesh, out_dir: Path, result: dict) -> None:

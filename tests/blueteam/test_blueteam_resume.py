@@ -18,7 +18,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf, open_dict
 
-from grt.runfolder import STUDY, ResumeError, SavedRun, own_study_config, resume_overrides
+from grt.config import plain
+from grt.runfolder.record import ResumeError
+from grt.runfolder.resume import STUDY, SavedRun, own_study_config, resume_overrides
 from tests.blueteam.conftest import ROOT, _cli
 from tests.blueteam.test_blueteam import TINY
 
@@ -150,13 +152,14 @@ def test_a_resumes_config_is_the_record_with_the_free_keys_of_its_command(record
     with open_dict(record):  # the record's YAML of that day: a key it lacks today's conf must not bring back
         record.blueteam.val_patience = 11
     OmegaConf.save(record, recorded / ".hydra" / "config.yaml")
-    own = own_study_config(composed, overrides)
+    own = OmegaConf.create(own_study_config(str(recorded), plain(composed), overrides))
     assert own.run == str(tmp_path / "redteam") and own.resume == str(recorded)
     assert (own.workers, own.blueteam.iterations, own.paths.cache_dir) == (3, 7, "/tmp/cache")
     assert own.blueteam.val_patience == 11 and own.blueteam.crashshapes == "topk"  # the record's, not today's
     assert own.blueteam.rered.enabled is False
     composed.blueteam.iterations = 150  # not given: the record's, whatever today's default
-    assert own_study_config(composed, [o for o in overrides if "iterations" not in o]).blueteam.iterations == 2
+    assert own_study_config(str(recorded), plain(composed),
+                            [o for o in overrides if "iterations" not in o])["blueteam"]["iterations"] == 2
     assert (own.evaluator.workers, own.evaluator.trial_timeout, own.evaluator.collision) == (3, 60, "fast")
 
 

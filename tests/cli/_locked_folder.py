@@ -14,7 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from grt.runfolder import LOCK, acquire, release
+from grt.runfolder.lock import LOCK, acquire, release
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -22,10 +22,9 @@ import pytest
 from hydra.utils import get_object
 from omegaconf import OmegaConf, open_dict
 
-from grt.config import validate
+from grt.config import SettingError, check_added_keys, validate
 from grt.errors import UserError
-from grt.runfolder import resume_overrides
-from grt.settings import SettingError, check_added_keys
+from grt.runfolder.resume import resume_overrides
 from grt.targets import ClassError
 from tests.cli._apps import ROOT, app, error_line, user_project
 from tests.runner._toy_run import TOY

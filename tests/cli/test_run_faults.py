@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from grt.runfolder import LOCK
+from grt.runfolder.lock import LOCK
 from tests.runner._toy_run import TOY
 
 ROOT = Path(__file__).resolve().parents[2]

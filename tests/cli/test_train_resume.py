@@ -19,7 +19,8 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf, open_dict
 
-from grt.runfolder import TRAINING, ResumeError, SavedRun, resume_overrides
+from grt.runfolder.record import ResumeError
+from grt.runfolder.resume import TRAINING, SavedRun, resume_overrides
 from tests.cli.test_train_cli import ROOT, grt_train, one_error_line
 
 # Not the defaults (task=insertion train=insertion_state): a resume must keep them. Tiny: 2 envs in this

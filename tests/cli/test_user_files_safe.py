@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 import trimesh
+from omegaconf import OmegaConf
 
 import grt.cli.deform as deform_cli
 from grt.objects import get_object
@@ -109,7 +110,7 @@ def test_a_finished_evaluations_folder_keeps_its_record(tmp_path):
 def test_which_folders_a_new_run_may_take(tmp_path):
     """New or empty (a lock file left by a SIGKILL is nothing), Hydra's files of a start killed before it saved
     anything, or a study / training its app continues in place; anything else is refused."""
-    from grt.runfolder import LOCK, FolderNotEmptyError, check_new_folder
+    from grt.runfolder.lock import LOCK, FolderNotEmptyError, check_new_folder
 
     def held(folder: Path) -> set[str]:
         return {p.name for p in folder.iterdir()}
@@ -167,10 +168,10 @@ def test_a_finished_run_resumed_has_nothing_to_do_and_changes_nothing(run_copy):
     assert res.returncode == 0, res.stderr[-3000:]
     assert json.loads((run_copy / "summary.json").read_text())["confirm"]["trials"] == 4
     from grt.config import make_plan
-    from grt.runfolder import load_run_config
+    from grt.runfolder.record import load_run_config
     from grt.runner import nothing_to_do
 
-    cfg = load_run_config(run_copy)  # as the command resolves it, in this process
+    cfg = OmegaConf.create(load_run_config(run_copy))  # as the command resolves it, in this process
     cfg.budget.confirm_trials = 4
     assert nothing_to_do(run_copy, make_plan(cfg)).startswith("nothing to do:")  # confirmed: nothing to do again
     cfg.budget.confirm_trials = 6
@@ -196,7 +197,7 @@ def test_an_edited_record_without_hydras_is_refused_by_its_object(run_copy):
     """No second record to compare with (a run started from Python, ``grt.runner.run``): the object the edited
     record gives is checked against the run's nominal.obj and journal, before anything is written."""
     from grt.errors import UserError
-    from grt.runfolder import load_run_config
+    from grt.runfolder.record import load_run_config
     from grt.runner import run
 
     shutil.rmtree(run_copy / ".hydra")
@@ -206,7 +207,7 @@ def test_an_edited_record_without_hydras_is_refused_by_its_object(run_copy):
     record = run_copy / "run_config.yaml"
     record.chmod(0o644)
     record.write_text(record.read_text().replace("\n  object: can\n", "\n  object: bottle\n"))
-    cfg = load_run_config(run_copy)
+    cfg = OmegaConf.create(load_run_config(run_copy))
     cfg.resume = str(run_copy)
     before = snapshot(run_copy)
     with pytest.raises(UserError, match=r"the object its record gives \(object=bottle, .* is not the object the run "

@@ -338,14 +338,18 @@ def test_on_the_gpu_a_population_races_in_rounds_of_sub_scenes():
 def test_a_cpu_run_is_not_resumed_on_the_gpu_nor_the_reverse(tmp_path):
     """One journal, one physics: a run scored by CPU workers goes on with CPU workers (or evaluator=gpu on
     physx_cpu, whose trials are theirs bit for bit), not on the GPU."""
-    from grt.runfolder import ResumeError, own_config, resume_overrides
+    from omegaconf import OmegaConf
+
+    from grt.config import plain
+    from grt.runfolder.record import ResumeError
+    from grt.runfolder.resume import own_config, resume_overrides
     from tests.runner.conftest import compose_run
 
     run_dir = Path(__file__).resolve().parents[1] / "data" / "run_format1_toy"
 
     def resumed(*overrides: str):
-        return own_config(compose_run([*resume_overrides([f"resume={run_dir}", *overrides]),
-                                       f"paths.output_dir={tmp_path}"]))
+        cfg = compose_run([*resume_overrides([f"resume={run_dir}", *overrides]), f"paths.output_dir={tmp_path}"])
+        return OmegaConf.create(own_config(str(cfg.resume), plain(cfg)))
 
     with pytest.raises(ResumeError, match="CPU workers, this command would go on with evaluator=gpu"):
         resumed("evaluator=gpu")

@@ -15,7 +15,7 @@ from grt.geometry.deform import ShapeDeformer
 from grt.journal import Journal
 from grt.optimizers import TOPDMOptimizer
 from grt.redteam import RedTeamLoop
-from grt.runfolder import storage_error
+from grt.runfolder.record import storage_error
 
 
 def _mount(*args: str) -> bool:

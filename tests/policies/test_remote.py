@@ -292,7 +292,7 @@ def test_the_token_is_never_written_into_the_run_folder(tmp_path, monkeypatch):
     from omegaconf import OmegaConf
 
     from grt.config import make_plan
-    from grt.runfolder import RUN_CONFIG, save_run_config
+    from grt.runfolder.record import RUN_CONFIG, save_run_config
     from tests.runner.conftest import compose_run
 
     monkeypatch.setenv("GRT_POLICY_TOKEN", "s3cret-value")

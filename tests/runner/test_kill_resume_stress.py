@@ -35,7 +35,7 @@ from pathlib import Path
 import pytest
 
 from grt.journal import Journal
-from grt.runfolder import is_run_folder
+from grt.runfolder.record import is_run_folder
 from tests.runner._toy_run import TOY
 
 ROOT = Path(__file__).resolve().parents[2]

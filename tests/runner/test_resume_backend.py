@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from grt.runfolder import ResumeError, resume_overrides
+from grt.runfolder.record import ResumeError
+from grt.runfolder.resume import resume_overrides
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN = ["task=insertion", "policy=insertion_state", "budget=smoke", "budget.iterations=3"]

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from grt.runfolder import RUN_CONFIG, ResumeError, resume_or, resume_overrides
+from grt.runfolder.record import RUN_CONFIG, ResumeError, resume_or
+from grt.runfolder.resume import resume_overrides
 from tests.runner._toy_run import TOY
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -19,17 +19,16 @@ from omegaconf import OmegaConf
 
 from grt.blueteam.core import load_run
 from grt.config import make_plan
-from grt.runfolder import (
+from grt.runfolder.record import (
     FORMAT,
     FORMAT_KEY,
     RUN_CONFIG,
     ResumeError,
-    SavedRun,
     load_run_config,
     migrate,
-    resume_overrides,
     save_run_config,
 )
+from grt.runfolder.resume import SavedRun, resume_overrides
 from tests.runner._toy_run import TOY
 from tests.runner.conftest import compose_run
 
@@ -65,7 +64,7 @@ def _old_style(run_dir: Path) -> None:
 def test_the_release_folder_is_format_1_and_migrates_without_changing_its_values(release_run):
     record = OmegaConf.load(release_run / RUN_CONFIG)
     assert FORMAT_KEY not in record
-    cfg = load_run_config(release_run)
+    cfg = OmegaConf.create(load_run_config(release_run))
     expected = OmegaConf.to_container(record.config)  # nothing was missing but the keys added since, off
     expected["budget"]["tau_rel"], expected["deformer"]["max_volume_change"] = None, None
     expected["budget"].update(racing=False, race_rounds=8, race_alpha=0.05, size_penalty=0.0)
@@ -76,7 +75,7 @@ def test_the_release_folder_is_format_1_and_migrates_without_changing_its_values
 
 def test_an_old_style_config_naming_grt_eval_is_migrated(release_run):
     _old_style(release_run)
-    cfg = load_run_config(release_run)
+    cfg = OmegaConf.create(load_run_config(release_run))
     assert cfg.evaluator._target_ == "grt.evaluators.sim.SimEvaluator"  # the grt.eval alias package is gone
     assert cfg.object_scale == 1.0 and cfg.mesh == {} and cfg.budget.confirm_trials == 0
     assert dict(cfg.deformer) == {"lam": 1.0, "method": "exact", "radius": 0.35, "validity": False,
@@ -90,10 +89,10 @@ def test_an_old_style_config_naming_grt_eval_is_migrated(release_run):
 
 def test_migrate_keeps_interpolations_and_current_configs():
     cfg = compose_run(["budget=smoke"])
-    assert OmegaConf.to_container(migrate(cfg, FORMAT)) == OmegaConf.to_container(cfg)
+    assert migrate(OmegaConf.to_container(cfg), FORMAT) == OmegaConf.to_container(cfg)
     old = OmegaConf.create({"object": "${task.object}", "task": {"object": "mug"},
                             "evaluator": {"_target_": "grt.eval.evaluator.SimEvaluator", "workers": 2}})
-    new = migrate(old, 1)
+    new = OmegaConf.create(migrate(OmegaConf.to_container(old), 1))
     assert OmegaConf.to_container(new)["object"] == "${task.object}" and new.object == "mug"
     assert new.evaluator == {"_target_": "grt.evaluators.sim.SimEvaluator", "workers": 2}
     assert old.evaluator._target_ == "grt.eval.evaluator.SimEvaluator"  # the given config is not changed
@@ -102,7 +101,7 @@ def test_migrate_keeps_interpolations_and_current_configs():
 def test_a_format_0_folder_is_read_from_hydras_record(release_run):
     (release_run / RUN_CONFIG).chmod(0o644)
     (release_run / RUN_CONFIG).unlink()
-    cfg = load_run_config(release_run)
+    cfg = OmegaConf.create(load_run_config(release_run))
     assert cfg.budget.population == 3 and cfg.object == "mug"
     assert SavedRun.load(release_run).format == 0
 

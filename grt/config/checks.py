@@ -1,24 +1,27 @@
-"""Settings checked before anything is written: keys nothing reads, and the plain sections' values.
+"""Checks of a composed config before anything is written: the first step of every Hydra app (:func:`validate`).
 
-:func:`check_added_keys`: a key added on the command line with ``+`` (``+deformer.lamda=2``, ``+foo=1``) that
-no code reads is refused with the section's keys and the close name, as ``+budget.foo=1`` is
-(:func:`grt.config.unknown_budget_key`). A key added under a node with a ``_target_`` is an argument of its
-class (:func:`grt.targets.check_target` checks that the class takes it), and a few keys GRT reads when they
-are there may be left out of a YAML (:data:`READ_IF_GIVEN`: ``+task.ci=wilson``).
-
-:func:`check_sections`: the values of the plain sections a run uses (``deformer``, ``mesh``, ``report``, the
-task's score settings), which their users would otherwise check only after the run folder's record is
-saved. Both run in :func:`grt.config.validate`, each app's first step.
+- the budget (:func:`grt.config.schema.check_budget`) and racing's need of a success rate;
+- keys added on the command line with ``+`` that no code reads (:func:`check_added_keys`: ``+deformer.lamda=2``,
+  ``+foo=1``) are refused with the section's keys and the close name, as ``+budget.foo=1`` is
+  (:func:`grt.config.schema.unknown_budget_key`). A key added under a node with a ``_target_`` is an argument
+  of its class (:func:`grt.targets.check_target` checks that the class takes it), and a few keys GRT reads
+  when they are there may be left out of a YAML (:data:`READ_IF_GIVEN`: ``+task.ci=wilson``);
+- the values of the plain sections a run uses (:func:`check_sections`: ``deformer``, ``mesh``, ``report``, the
+  task's score settings), which their users would otherwise check only after the run folder's record is saved;
+- the optimizer's settings, and every class a ``_target_`` names: it imports and takes the keys given to it.
 """
 
 from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Iterator, Mapping
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from grt.config.schema import ConfigError, check_budget
 from grt.errors import UserError
+from grt.targets import build_error, check_target
 
 #: Keys GRT reads from a section when they are given, that its YAMLs may leave out (so ``+key=`` adds them).
 READ_IF_GIVEN: dict[str, tuple[str, ...]] = {
@@ -29,6 +32,92 @@ READ_IF_GIVEN: dict[str, tuple[str, ...]] = {
 
 class SettingError(UserError):
     """A key nothing reads, or a section's value out of range; the message names the key and the fix."""
+
+
+def validate(cfg: DictConfig, classes: tuple[str, ...] | None = None) -> DictConfig:
+    """Check a composed root config before anything is written; the first step of every Hydra app.
+
+    Checks the budget (:func:`check_budget`), keys added with ``+`` that nothing reads
+    (:func:`check_added_keys`; not for a resume, whose config was accepted when it started:
+    its classes must import, their arguments are not checked again),
+    the plain sections' values (:func:`check_sections`: ``deformer``, ``mesh``,
+    ``report.videos``, the task's score settings), that the optimizer accepts its settings (CMA-ES needs a
+    population of at least 2), and that every class the config names imports and takes the keys given to
+    it (:func:`grt.targets.check_target`), so a bad value is refused before the run's folder is saved and
+    before the nominal simulation.
+
+    Args:
+        cfg: the composed root config.
+        classes: the config keys whose ``_target_`` this app builds (``("selector",)``; a task's session
+            class imports the simulator); ``None``: every one.
+
+    Returns:
+        ``cfg``, unchanged.
+
+    Raises:
+        UserError: one line naming the key and the fix (exit code 2 in the CLIs, see :mod:`grt.cli._common`).
+    """
+    budget = cfg.get("budget")
+    if budget is not None:
+        check_budget(budget)
+        _check_racing(budget, cfg.get("task"))
+    added, groups, app = _command()
+    resumed = bool(cfg.get("resume"))  # a run's own config, accepted when it started: its classes must import
+    if added and not resumed:
+        check_added_keys(cfg, added, app, groups)
+    check_sections(cfg)
+    optimizer = cfg.get("optimizer")
+    if budget is not None and isinstance(optimizer, DictConfig) and "_target_" in optimizer:
+        check_target("optimizer", optimizer)
+        _check_optimizer(optimizer)
+    for key, node in target_nodes(cfg):
+        if classes is None or any(key == c or key.startswith(f"{c}.") for c in classes):
+            check_target(key, node, arguments=not resumed)
+    return cfg
+
+
+def _command() -> tuple[list[str], set[str], str]:
+    """The running Hydra app's overrides, config groups and name (``grt.run``); nothing outside an app."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return [], set(), "this command"
+    hydra_cfg = HydraConfig.get()
+    return list(hydra_cfg.overrides.task), set(hydra_cfg.runtime.choices), f"grt.{hydra_cfg.job.name}"
+
+
+def _check_racing(budget: Mapping, task: Mapping | None) -> None:
+    """Racing judges success rates (a hypergeometric count of failures): refuse it for a continuous score."""
+    from grt.scores import ScoreSpec
+
+    if budget.get("racing") and task is not None and not ScoreSpec.from_task(task).binary:
+        spec = ScoreSpec.from_task(task)
+        raise ConfigError(f"budget.racing=true needs a success rate, but task {task.get('name')}'s score is "
+                          f"{spec.label}; run it with budget.racing=false")
+
+
+def _check_optimizer(node: DictConfig) -> None:
+    """Build the configured optimizer once (cheap, no simulation): its own range checks run now."""
+    from hydra.utils import get_class, instantiate
+
+    name = str(node._target_).rsplit(".", 1)[-1]
+    least = getattr(get_class(str(node._target_)), "min_population", 1)
+    population = node.get("population")
+    if isinstance(population, int) and population < least:  # one line naming the setting, not the library's
+        module = str(node._target_).rsplit(".", 2)[-2]
+        why = getattr(get_class(str(node._target_)), "min_population_reason", "")
+        raise ConfigError(f"budget.population={population} is too small for optimizer={module}: {name} needs a "
+                          f"population of at least {least}{f' ({why})' if why else ''}; set "
+                          f"budget.population={least} or more")
+    try:
+        instantiate(node)(num_handles=1)  # the optimizer groups are partials: num_handles comes at run time
+    except UserError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{name} refuses its settings (optimizer.*, budget.population, budget.sigma): "
+                          f"{exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a user's optimizer: one line, the traceback in a file
+        raise build_error("optimizer", str(node._target_), "building it", exc) from None
 
 
 def check_added_keys(cfg: DictConfig, overrides: list[str], app: str = "this command",
@@ -220,3 +309,21 @@ def check_deformer(node) -> None:
 
 def _number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def target_nodes(cfg, path: str = "") -> Iterator[tuple[str, DictConfig]]:
+    """``(key, node)`` of every node with a ``_target_`` in ``cfg`` (Hydra's own ``hydra`` node left out),
+    outermost first; ``key`` is the dotted path (``policy``, ``task.session``, ``train.bc.expert``)."""
+    if isinstance(cfg, DictConfig):
+        if "_target_" in cfg:
+            yield path, cfg
+        for key in cfg:
+            if path == "" and key == "hydra":
+                continue
+            child = cfg._get_node(key)
+            if isinstance(child, (DictConfig, ListConfig)) and not child._is_missing() and not child._is_none():
+                yield from target_nodes(child, f"{path}.{key}" if path else str(key))
+    elif isinstance(cfg, ListConfig):
+        for i, child in enumerate(cfg._iter_ex(resolve=False)):
+            if isinstance(child, (DictConfig, ListConfig)):
+                yield from target_nodes(child, f"{path}[{i}]")
