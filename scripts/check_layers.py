@@ -1,9 +1,13 @@
-"""Check that GRT's imports only point down: no import cycle, no import from a lower layer to a higher one.
+"""Check GRT's imports: no import cycle, no import from a lower layer to a higher one, Hydra only on top.
 
 Builds the import graph of the package from its source (``ast``, nothing is imported): every ``import``
 and ``from ... import`` of a ``grt`` module, function-local ones included, except those under
 ``if TYPE_CHECKING:`` (they never run). Each module is placed in a layer by :data:`LAYERS`; a module the
-table does not place is an error, so a new module has to be given its layer.
+table does not place is an error, so a new module has to be given its layer. Hydra and OmegaConf
+(:data:`CONFIG_LIBRARIES`) may be imported only by the app layer (the top one: ``grt.cli`` and the ``python
+-m`` shims) and by :data:`CONFIG_OWNERS` (``grt.config``, which turns the config into the run's plan): the
+library below reads plain, typed settings. When the checked tree has ``docs/architecture.md``, its layer map
+(the table of the "Map" section) must name exactly the layers and modules of :data:`LAYERS`.
 
 Usage::
 
@@ -25,8 +29,8 @@ from pathlib import Path
 PACKAGE = "grt"
 
 # Low to high: a module may import modules of its own layer or lower ones. A module is placed by the
-# longest entry that is itself or one of its parent packages; ``python -m`` shims (``__main__`` modules)
-# and the command-line apps sit on top.
+# longest entry that is itself or one of its parent packages; ``python -m`` shims (``__main__`` modules and
+# :data:`SHIMS`) and the command-line apps sit on top.
 LAYERS: dict[str, int] = {
     "grt": 0, "grt.errors": 0, "grt.fileio": 0, "grt.console": 0,
     "grt.policy_server": 0,  # imports no GRT module: it is copied alone into a policy's own environment
@@ -34,19 +38,33 @@ LAYERS: dict[str, int] = {
     "grt.geometry": 2,
     "grt.optimizers": 3, "grt.metrics": 3, "grt.scores": 3, "grt.racing": 3, "grt.noise_floor": 3, "grt.ranking": 3,
     "grt.agreement": 3,
-    "grt.config": 4, "grt.settings": 4, "grt.targets": 4, "grt.plan": 4,
+    "grt.config": 4, "grt.plan": 4, "grt.targets": 4,
     "grt.selectors": 5, "grt.policies": 5,
     "grt.tasks": 6,
     "grt.evaluators": 7,
-    "grt.journal": 8, "grt.redteam": 8, "grt.confirm": 8, "grt.outputs": 8, "grt.runfolder": 8,
-    "grt.loggers": 8, "grt.runner": 8, "grt.report": 8, "grt.rerun": 8, "grt.shrink": 8,
-    "grt.sequential": 8, "grt.profile": 8, "grt.swapcheck": 8,
-    "grt.rl": 9, "grt.blueteam": 9,
-    "grt.bench": 10,
-    "grt.cli": 11, "grt.run": 11, "grt.evaluate": 11, "grt.select": 11, "grt.deform": 11, "grt.train": 11,
-    "grt.serve": 11, "grt.replay": 11, "grt.calibrate": 11, "grt.setup": 11,
+    "grt.journal": 8, "grt.runfolder.record": 8, "grt.loggers": 8,
+    "grt.redteam": 9, "grt.confirm": 9, "grt.outputs": 9, "grt.runner": 9, "grt.report": 9, "grt.rerun": 9,
+    "grt.runfolder": 9, "grt.sequential": 9, "grt.shrink": 9, "grt.profile": 9, "grt.swapcheck": 9,
+    "grt.rl": 10, "grt.blueteam": 10,
+    "grt.bench": 11,
+    "grt.cli": 12,
 }
-TOP = 11  # every ``__main__`` module (a ``python -m`` shim)
+TOP = 12  # the app layer: grt.cli, every ``__main__`` module and :data:`SHIMS`
+# ``python -m grt.<verb>`` shims: one module each, calling its app in grt.cli.
+SHIMS = ("grt.run", "grt.evaluate", "grt.select", "grt.deform", "grt.train", "grt.serve", "grt.replay",
+         "grt.calibrate", "grt.setup")
+# Libraries that read the composed config (Hydra and OmegaConf), and the modules below the app layer that may
+# import them: the one package that turns the config into the run's plan.
+CONFIG_LIBRARIES = ("hydra", "omegaconf")
+CONFIG_OWNERS = ("grt.config",)
+# Library modules that still import Hydra or OmegaConf, until they take plain settings from the app layer:
+# listed so that no other module starts to, and named in the OK line until the list is empty.
+CONFIG_READERS_LEFT = ("grt.bench.gpu", "grt.bench.grasp", "grt.bench.insertion", "grt.bench.racing",
+                       "grt.bench.remote", "grt.bench.scale", "grt.blueteam.core", "grt.blueteam.finetune",
+                       "grt.blueteam.study", "grt.evaluators.base", "grt.evaluators.gpu", "grt.evaluators.pool",
+                       "grt.rl.policy_training", "grt.targets", "grt.tasks", "grt.tasks.maniskill.refresh_check",
+                       "grt.profile.command")
+DOCS_MAP = Path("docs") / "architecture.md"
 
 
 @dataclass(frozen=True)
@@ -61,7 +79,7 @@ class Edge:
 
 def layer_of(module: str, layers: dict[str, int] = LAYERS) -> int | None:
     """The layer of ``module`` (the longest placed prefix), or ``None`` if the table does not place it."""
-    if module.rsplit(".", 1)[-1] == "__main__":
+    if module.rsplit(".", 1)[-1] == "__main__" or module in SHIMS:
         return TOP
     parts = module.split(".")
     for end in range(len(parts), 0, -1):
@@ -125,6 +143,58 @@ def imports_of(module: str, path: Path, modules: dict[str, Path], package: str =
                 if edge.target != module and edge not in edges:
                     edges.append(edge)
     return edges
+
+
+def config_imports(path: Path, libraries: tuple[str, ...] = CONFIG_LIBRARIES) -> list[tuple[str, int]]:
+    """``(name, line)`` of every import of ``libraries`` (``hydra.utils``, ``omegaconf``) in the file ``path``."""
+    found = []
+    for node in _nodes(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            names = [node.module or ""]
+        else:
+            continue
+        found += [(name, node.lineno) for name in names if name.split(".")[0] in libraries]
+    return found
+
+
+def may_read_config(module: str, layers: dict[str, int] = LAYERS) -> bool:
+    """Whether ``module`` may import Hydra or OmegaConf: it is in the app layer or in :data:`CONFIG_OWNERS`."""
+    owned = any(module == owner or module.startswith(f"{owner}.") for owner in CONFIG_OWNERS)
+    return owned or layer_of(module, layers) == TOP or module in CONFIG_READERS_LEFT
+
+
+def documented_layers(text: str) -> dict[str, int] | None:
+    """The layer of each module the layer map of ``docs/architecture.md`` names (the table of its "Map"
+    section: ``| L4 | `grt.config`, `grt.plan` | ...``), or ``None`` when the page has no such table."""
+    section = text.split("\n## Map", 1)[-1].split("\n## ", 1)[0] if "\n## Map" in text else ""
+    found: dict[str, int] = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) < 2 or not cells[0].startswith("L") or not cells[0][1:].isdigit():
+            continue
+        for name in cells[1].split("`")[1::2]:
+            if name == PACKAGE or name.startswith(f"{PACKAGE}."):
+                found[name] = int(cells[0][1:])
+    return found or None
+
+
+def docs_problems(root: Path, layers: dict[str, int] = LAYERS) -> list[str]:
+    """Where ``root/docs/architecture.md``'s layer map and :data:`LAYERS` differ (nothing without the page)."""
+    page = root / DOCS_MAP
+    if not page.is_file():
+        return []
+    documented = documented_layers(page.read_text())
+    if documented is None:
+        return [f"{DOCS_MAP}: no layer map (a table of `| L<n> | `grt.module`, ... |` rows under '## Map')"]
+    measured = {name: layer for name, layer in layers.items() if name != PACKAGE}
+    problems = [f"{DOCS_MAP}: {name} is in L{layer} of scripts/check_layers.py but not in the layer map"
+                for name, layer in sorted(measured.items()) if name not in documented]
+    problems += [f"{DOCS_MAP}: the layer map puts {name} in L{layer}, scripts/check_layers.py in "
+                 f"{'no layer' if name not in measured else f'L{measured[name]}'}"
+                 for name, layer in sorted(documented.items()) if measured.get(name) != layer]
+    return problems
 
 
 def find_cycles(modules: Iterable[str], edges: Iterable[Edge]) -> list[list[str]]:
@@ -215,6 +285,12 @@ def check(root: Path, package: str = PACKAGE, layers: dict[str, int] = LAYERS) -
                             f"{e.target} (L{high})")
     for cycle in find_cycles(modules, edges):
         problems.append("import cycle: " + " -> ".join(cycle))
+    for module, path in modules.items():
+        if layer_of(module, layers) is not None and not may_read_config(module, layers):
+            problems += [f"{_where(path, line, root)}: {module} imports {name}: Hydra and OmegaConf belong to the "
+                         f"app layer (grt.cli, the python -m shims) and {', '.join(CONFIG_OWNERS)}, which turns the "
+                         "config into the run's plan" for name, line in config_imports(path)]
+    problems += docs_problems(root, layers)
     unique_edges = {(e.source, e.target) for e in edges}
     return problems, len(modules), len(unique_edges)
 
@@ -237,7 +313,9 @@ def main(argv: list[str] | None = None) -> int:
     if problems:
         print(f"{len(problems)} layer violation(s) in {n_modules} modules", file=sys.stderr)
         return 1
-    print(f"OK: {n_modules} modules, {n_edges} import edges, no cycle, no upward import")
+    left = f" (and, still, {len(CONFIG_READERS_LEFT)} listed modules)" if CONFIG_READERS_LEFT else ""
+    print(f"OK: {n_modules} modules, {n_edges} import edges, no cycle, no upward import, Hydra and OmegaConf "
+          f"only in the app layer and {', '.join(CONFIG_OWNERS)}{left}, {DOCS_MAP}'s layer map as measured")
     return 0
 
 

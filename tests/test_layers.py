@@ -121,3 +121,36 @@ def test_the_command_fails_with_one_line_per_violation(tmp_path):
         f"{Path('grt/errors.py')}:1: upward import: grt.errors (L0) imports grt.config (L4)",
         "import cycle: grt.config -> grt.errors -> grt.config",
     ]
+
+
+def test_hydra_and_omegaconf_only_in_the_app_layer_and_the_config_package(tmp_path, checker):
+    """The library reads plain, typed settings: only ``grt.cli``, the shims and ``grt.config`` (which turns the
+    config into the plan) import Hydra or OmegaConf, function-local imports included."""
+    root = _package(tmp_path, {
+        "grt/config/__init__.py": "from omegaconf import OmegaConf\n",
+        "grt/cli/__init__.py": "",
+        "grt/cli/run.py": "import hydra\nfrom hydra.core.hydra_config import HydraConfig\n",
+        "grt/run.py": "from omegaconf import DictConfig\n",
+        "grt/geometry/__init__.py": "",
+        "grt/geometry/mesh.py": "import os\n\n\ndef f():\n    from hydra.utils import instantiate\n",
+        "grt/selectors/__init__.py": "import omegaconf.errors\n",
+    })
+    problems, _, _ = checker.check(root)
+    why = ("Hydra and OmegaConf belong to the app layer (grt.cli, the python -m shims) and grt.config, which "
+           "turns the config into the run's plan")
+    assert problems == [f"{Path('grt/geometry/mesh.py')}:5: grt.geometry.mesh imports hydra.utils: {why}",
+                        f"{Path('grt/selectors/__init__.py')}:1: grt.selectors imports omegaconf.errors: {why}"]
+
+
+def test_the_layer_map_of_the_docs_is_the_one_measured(tmp_path, checker):
+    root = _package(tmp_path, {"grt/errors.py": "", "grt/objects/__init__.py": ""})
+    layers = {"grt": 0, "grt.errors": 0, "grt.objects": 1}
+    page = tmp_path / "docs" / "architecture.md"
+    page.parent.mkdir()
+    table = "# A\n\n## Map: package\n\n| layer | package |\n|---|---|\n| L0 | `grt.errors` |\n| L1 | `grt.objects` |\n"
+    page.write_text(table + "\n## Next\n| L7 | `grt.elsewhere` |\n")  # only the Map section's table counts
+    assert checker.check(root, layers=layers)[0] == []
+    page.write_text(table.replace("| L1 | `grt.objects` |", "| L2 | `grt.objects`, `grt.gone` |"))
+    assert checker.check(root, layers=layers)[0] == [
+        f"{Path('docs/architecture.md')}: the layer map puts grt.gone in L2, scripts/check_layers.py in no layer",
+        f"{Path('docs/architecture.md')}: the layer map puts grt.objects in L2, scripts/check_layers.py in L1"]
