@@ -62,8 +62,7 @@ CONFIG_OWNERS = ("grt.config",)
 CONFIG_READERS_LEFT = ("grt.bench.gpu", "grt.bench.grasp", "grt.bench.insertion", "grt.bench.racing",
                        "grt.bench.remote", "grt.bench.scale", "grt.blueteam.core", "grt.blueteam.finetune",
                        "grt.blueteam.study", "grt.evaluators.base", "grt.evaluators.gpu", "grt.evaluators.pool",
-                       "grt.rl.policy_training", "grt.targets", "grt.tasks", "grt.tasks.maniskill.refresh_check",
-                       "grt.profile.command")
+                       "grt.rl.policy_training", "grt.targets", "grt.tasks", "grt.tasks.maniskill.refresh_check")
 DOCS_MAP = Path("docs") / "architecture.md"
 
 

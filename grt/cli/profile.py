@@ -25,7 +25,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig
 
 from grt.cli._common import CONF_DIR, exit_on_user_error, resumable_cli
-from grt.config import ConfigError, add_resolver, at_least, validate
+from grt.config import ConfigError, add_resolver, at_least, plain, validate
 
 log = logging.getLogger(__name__)
 SETTINGS = {"shapes": at_least(1), "trials": at_least(1), "seed": at_least(0), "directions": at_least(0),
@@ -63,7 +63,7 @@ def main(cfg: DictConfig) -> None:
         from grt.profile.command import profile
 
         out_dir = Path(cfg.resume or HydraConfig.get().runtime.output_dir)
-        result = profile(cfg, out_dir, given_keys(), str(HydraConfig.get().runtime.choices.get("policy")))
+        result = profile(plain(cfg), out_dir, given_keys(), str(HydraConfig.get().runtime.choices.get("policy")))
     print(describe(result, out_dir))
     if cfg.run:
         _report(Path(cfg.run))

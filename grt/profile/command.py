@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
 
-from grt.config import plain
+from grt.config import saved_plan
+from grt.config.records import ConfigView
 from grt.confirm import fresh_seeds
 from grt.console import progress
 from grt.evaluators.base import evaluator_preflight
@@ -29,12 +30,12 @@ from grt.geometry.prepare import MeshSettings
 from grt.journal import Journal
 from grt.optimizers.smoothness import budget_tau
 from grt.outputs import git_state
-from grt.plan import DeformerPlan, object_name
+from grt.plan import DeformerPlan, RunPlan, dotted, object_name
 from grt.profile import PROFILE_JSON, PROFILE_PNG
 from grt.profile.measure import Direction, measure, plan
 from grt.profile.shapes import ProfileError, check_sizes, default_sizes, largest_mm
 from grt.redteam import episode_seeds
-from grt.runfolder import is_run_folder, load_run_config
+from grt.runfolder.record import is_run_folder, load_run_config
 from grt.scores import ScoreSpec, crash_margin
 from grt.selectors.base import HandleSet
 from grt.targets import build
@@ -63,11 +64,11 @@ class Setup:
     validity: object
 
 
-def profile(cfg: DictConfig, out_dir: Path, given: tuple[str, ...] = (), policy_choice: str = "") -> dict:
+def profile(cfg: Mapping, out_dir: Path, given: tuple[str, ...] = (), policy_choice: str = "") -> dict:
     """Measure and write the profile (``profile.json``, ``profile.png``, ``profile.jsonl``) into ``out_dir``.
 
     Args:
-        cfg: the composed ``conf/profile.yaml``.
+        cfg: the composed ``conf/profile.yaml``, plain.
         out_dir: the profile's folder.
         given: the keys the command line set (``object``, ``policy``, ``task.session.x`` ...): with a run,
             :data:`RUN_FIXES` given must name the run's own.
@@ -77,18 +78,18 @@ def profile(cfg: DictConfig, out_dir: Path, given: tuple[str, ...] = (), policy_
         What ``profile.json`` holds.
     """
     start = time.perf_counter()
-    setup = _from_run(cfg, given, policy_choice) if cfg.run else _from_command(cfg, policy_choice)
-    deformer, score = setup.deformer, ScoreSpec.from_task(setup.task)
-    sizes = check_sizes(cfg.profile.sizes) if cfg.profile.sizes is not None else default_sizes(
+    setup = _from_run(cfg, given, policy_choice) if cfg["run"] else _from_command(cfg, policy_choice)
+    deformer, score, settings = setup.deformer, ScoreSpec.from_task(setup.task), cfg["profile"]
+    sizes = check_sizes(settings["sizes"]) if settings["sizes"] is not None else default_sizes(
         float(np.linalg.norm(deformer.mesh.extents)) * 1000, setup.tau * 1000 if setup.tau else None,
         max((largest_mm(deformer, d.theta) for d in setup.directions), default=None))
-    directions = setup.directions[:int(cfg.profile.directions)]
-    shapes = plan(deformer, sizes, int(cfg.profile.shapes), int(cfg.profile.seed), directions, setup.validity,
-                  given=cfg.profile.sizes is not None)  # refuses sizes beyond plausibility, before simulating
+    directions = setup.directions[:int(settings["directions"])]
+    shapes = plan(deformer, sizes, int(settings["shapes"]), int(settings["seed"]), directions, setup.validity,
+                  given=settings["sizes"] is not None)  # refuses sizes beyond plausibility, before simulating
     for note in shapes.notes:
         print(f"note: {note}", flush=True)
-    seeds = fresh_seeds(int(cfg.profile.seed), int(cfg.profile.trials), setup.exclude, _STREAM)
-    evaluator = build(OmegaConf.create(setup.evaluator), "evaluator", task=setup.task, policy=setup.policy,
+    seeds = fresh_seeds(int(settings["seed"]), int(settings["trials"]), setup.exclude, _STREAM)
+    evaluator = build(setup.evaluator, "evaluator", task=setup.task, policy=setup.policy,
                       nominal=deformer.mesh, progress=False)
     count = 1 + sum(len(t) for _, t, _ in shapes.random) + sum(len(levels) for _, levels, _ in shapes.directions)
     try:
@@ -96,84 +97,83 @@ def profile(cfg: DictConfig, out_dir: Path, given: tuple[str, ...] = (), policy_
             evaluator.start()
         with progress(count, "profile", "shape") as bar:
             result = measure(out_dir, shapes, deformer, evaluator, seeds, crash_margin(setup.task), score.binary,
-                             score.ci, int(cfg.profile.rounds), on_done=lambda: bar.update(1))
+                             score.ci, int(settings["rounds"]), on_done=lambda: bar.update(1))
     finally:
         evaluator.close()
     out = {"task": setup.task["name"], "object": setup.object, "policy": setup.policy_name,
-           "run": str(cfg.run) if cfg.run else None, "tau_mm": setup.tau * 1000 if setup.tau else None,
+           "run": str(cfg["run"]) if cfg["run"] else None, "tau_mm": setup.tau * 1000 if setup.tau else None,
            "diagonal_mm": round(float(np.linalg.norm(deformer.mesh.extents)) * 1000, 2),
            "size_measure": "largest displacement of any surface point from the nominal object (mm)",
-           "sizes_mm": shapes.sizes, "shapes": int(cfg.profile.shapes), "trials": len(seeds), "seeds": seeds,
-           "seed": int(cfg.profile.seed), "score_name": score.name, "score_unit": score.unit, "notes": shapes.notes,
+           "sizes_mm": shapes.sizes, "shapes": int(settings["shapes"]), "trials": len(seeds), "seeds": seeds,
+           "seed": int(settings["seed"]), "score_name": score.name, "score_unit": score.unit, "notes": shapes.notes,
            **result, "wall_s": round(time.perf_counter() - start, 1), "git": git_state()}
     _write(out_dir, out)
     return out
 
 
-def _from_command(cfg: DictConfig, policy_choice: str) -> Setup:
+def _from_command(cfg: Mapping, policy_choice: str) -> Setup:
     """The profile's :class:`Setup` without a run: random deformations of the command's object."""
-    task, policy = plain(cfg.task), plain(cfg.policy)
-    mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir), scale=cfg.object_scale,
-                     settings=MeshSettings.from_config(cfg.mesh))
+    task, policy, budget, deformer_plan = cfg["task"], cfg["policy"], cfg["budget"], DeformerPlan.of(cfg["deformer"])
+    mesh = load_mesh(task_object(task, cfg["object"], cfg["paths"]["cache_dir"]), scale=cfg["object_scale"],
+                     settings=MeshSettings.from_config(cfg["mesh"]))
     check_object_size(mesh)
-    preflight(task, policy, mesh, cfg.object_scale)
-    evaluator_preflight(plain(cfg.evaluator), task, policy)
-    handles = build(cfg.selector, "selector").select(mesh, task_description(cfg.task))
-    deformer = ShapeDeformer(mesh, handles.handles, handles.anchors, **DeformerPlan.of(cfg.deformer).options)
-    tau = budget_tau(cfg.budget.tau, cfg.budget.get("tau_rel"), float(np.linalg.norm(mesh.extents)))[0]
-    exclude = episode_seeds(int(cfg.budget.seed), int(cfg.budget.trials))
-    return Setup(task, policy, policy_choice, object_name(str(cfg.object)), deformer, tau, [], exclude,
-                 plain(cfg.evaluator), DeformerPlan.of(cfg.deformer).check)
+    preflight(task, policy, mesh, cfg["object_scale"])
+    evaluator_preflight(cfg["evaluator"], task, policy)
+    handles = build(cfg["selector"], "selector").select(mesh, task_description(task))
+    deformer = ShapeDeformer(mesh, handles.handles, handles.anchors, **deformer_plan.options)
+    tau = budget_tau(budget["tau"], budget.get("tau_rel"), float(np.linalg.norm(mesh.extents)))[0]
+    exclude = episode_seeds(int(budget["seed"]), int(budget["trials"]))
+    return Setup(task, policy, policy_choice, object_name(str(cfg["object"])), deformer, tau, [], exclude,
+                 dict(cfg["evaluator"]), deformer_plan.check)
 
 
-def _from_run(cfg: DictConfig, given: tuple[str, ...], policy_choice: str) -> Setup:
+def _from_run(cfg: Mapping, given: tuple[str, ...], policy_choice: str) -> Setup:
     """The profile's :class:`Setup` from a red-team run folder (see the module doc)."""
-    run_dir = Path(cfg.run)
+    run_dir = Path(cfg["run"])
     if not is_run_folder(run_dir) or not (run_dir / "journal.jsonl").is_file() or not (run_dir / "handles.json").is_file():
         raise ProfileError(f"run={run_dir} is not a red-team run folder (it needs run_config.yaml, handles.json and "
                            "journal.jsonl); give run=outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>, or "
                            "leave run= out to profile random deformations of object=... alone")
-    run_cfg = load_run_config(run_dir)
-    _check_same(cfg, run_cfg, given, run_dir)
+    run = saved_plan(load_run_config(run_dir), run_dir)
+    _check_same(cfg, run, given)
     summary = json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").is_file() else {}
     records = Journal(run_dir / "journal.jsonl").records
     directions = _directions(summary, records)
     if not directions:
         raise ProfileError(f"run={run_dir} found no CrashShape ({summary.get('note') or 'no summary.json'}), so there "
                            "is no adversarial direction to profile: profile random deformations alone with the run's "
-                           f"task and object and no run= (task={run_cfg.task.name} object={run_cfg.object}), or "
+                           f"task and object and no run= (task={run.task['name']} object={run.object}), or "
                            "red-team longer first")
-    task = plain(run_cfg.task)
+    task = run.task
     own = any(_under(k, "policy") for k in given)
-    policy = plain(cfg.policy) if own else plain(run_cfg.policy)
-    mesh = load_mesh(task_object(run_cfg.task, run_cfg.object, cfg.paths.cache_dir), scale=run_cfg.object_scale,
-                     settings=MeshSettings.from_config(run_cfg.get("mesh")))
-    preflight(task, policy, mesh, run_cfg.object_scale)
+    policy = cfg["policy"] if own else run.policy
+    mesh = load_mesh(task_object(task, run.object, cfg["paths"]["cache_dir"]), scale=run.object_scale, settings=run.mesh)
+    preflight(task, policy, mesh, run.object_scale)
     handles = HandleSet.from_json((run_dir / "handles.json").read_text())
-    deformer = ShapeDeformer(mesh, handles.handles, handles.anchors, **DeformerPlan.of(run_cfg.deformer).options)
-    evaluator = plain(cfg.evaluator)
+    deformer = ShapeDeformer(mesh, handles.handles, handles.anchors, **run.deformer.options)
+    evaluator = dict(cfg["evaluator"])
     for key in ("collision", "coacd", "max_hull_vertices"):  # the run's collision geometry
-        if key in run_cfg.evaluator:
-            evaluator[key] = plain(run_cfg.evaluator[key]) if isinstance(run_cfg.evaluator[key], DictConfig) \
-                else run_cfg.evaluator[key]
+        if key in run.evaluator:
+            evaluator[key] = run.evaluator[key]
     evaluator_preflight(evaluator, task, policy)
     return Setup(task, policy, policy_choice if own else str(summary.get("policy", "?")),
-                 object_name(str(run_cfg.object)), deformer, summary.get("tau"), directions,
-                 _run_episodes(run_cfg, summary), evaluator, DeformerPlan.of(run_cfg.deformer).check)
+                 run.object_name, deformer, summary.get("tau"), directions, _run_episodes(run, summary), evaluator,
+                 run.deformer.check)
 
 
-def _check_same(cfg: DictConfig, run_cfg: DictConfig, given: tuple[str, ...], run_dir: Path) -> None:
+def _check_same(cfg: Mapping, run: RunPlan, given: tuple[str, ...]) -> None:
     """Refuse a command that names another task or object (or mesh, deformer, handles) than the run's."""
+    saved = ConfigView(run.config)
     for key in RUN_FIXES:
         if not any(_under(k, key) for k in given):
             continue
-        mine = OmegaConf.select(cfg, key if key != "task" else "task.name", default=None)
-        theirs = OmegaConf.select(run_cfg, key if key != "task" else "task.name", default=None)
+        mine = dotted(cfg, key if key != "task" else "task.name")
+        theirs = saved.get(key if key != "task" else "task.name")
         if key == "object":
             mine, theirs = object_name(str(mine)), object_name(str(theirs))
-        if _plain(mine) != _plain(theirs):
-            raise ProfileError(f"run={run_dir} is a run of task {run_cfg.task.name} on {object_name(str(run_cfg.object))}"
-                               f"; {key}={_plain(mine)} is another {'task' if key == 'task' else key}: its CrashShapes "
+        if mine != theirs:
+            raise ProfileError(f"run={run.run_dir} is a run of task {run.task['name']} on {run.object_name}"
+                               f"; {key}={mine} is another {'task' if key == 'task' else key}: its CrashShapes "
                                f"are shapes of that run's {key}. Profile it without run= (random deformations alone), "
                                "or give a run of it")
 
@@ -189,18 +189,14 @@ def _directions(summary: dict, records: list[dict]) -> list[Direction]:
     return sorted(shapes, key=lambda d: (d.confirmed is not True, d.rank))
 
 
-def _run_episodes(run_cfg: DictConfig, summary: dict) -> list[int]:
+def _run_episodes(run: RunPlan, summary: dict) -> list[int]:
     """Every episode seed the run used: its search's, its confirmation's and its shrink's."""
-    seeds = episode_seeds(int(run_cfg.budget.seed), int(run_cfg.budget.trials))
+    seeds = episode_seeds(run.budget.seed, run.budget.trials)
     return seeds + list((summary.get("confirm") or {}).get("seeds", [])) + list((summary.get("shrink") or {}).get("seeds", []))
 
 
 def _under(key: str, prefix: str) -> bool:
     return key == prefix or key.startswith(f"{prefix}.") or key.startswith(f"{prefix}/")
-
-
-def _plain(value):
-    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
 
 
 def _write(out_dir: Path, out: dict) -> None:
