@@ -25,7 +25,7 @@ from grt.config import plain, validate
 from grt.errors import TERMINATED, Terminated
 from grt.policies.base import BatchedPolicy, GraspObservation, GraspPolicy, PolicyServerError
 from grt.policy_server import PolicyServer
-from grt.runfolder import LOCK, discard_new
+from grt.runfolder.lock import LOCK, discard_new
 from grt.targets import build
 from grt.tasks import session_class
 
