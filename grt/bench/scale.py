@@ -158,14 +158,16 @@ def noop_round_trip_ms(ev, calls: int) -> tuple[float, float]:
 
 
 def _protocol() -> dict:
-    """Population, iterations and top-k of ``conf/budget/paper.yaml``; each task's paper trial count."""
+    """Population, iterations and top-k of ``conf/budget/paper.yaml``; each task's paper trial count; the YAML's
+    ``confirm_trials`` as written (``${.trials}``: a candidate's trials, resolved only within a task)."""
     from omegaconf import OmegaConf
 
     paper = OmegaConf.load(Path(CONF_DIR) / "budget" / "paper.yaml")
     trials = {name: int(OmegaConf.load(Path(CONF_DIR) / "task" / f"{name}.yaml").trials)
               for name in ("grasp", "insertion", "drawer")}
     return {"population": int(paper.population), "iterations": int(paper.iterations), "top_k": int(paper.top_k),
-            "confirm_trials_in_paper_yaml": int(paper.get("confirm_trials", 0) or 0), "trials": trials}
+            "confirm_trials_in_paper_yaml": str(OmegaConf.to_container(paper).get("confirm_trials", 0)),
+            "trials": trials}
 
 
 def call_seconds(trials: int, candidates: int, workers: int, cost: dict) -> tuple[float, float]:
