@@ -4,8 +4,8 @@ Builds the import graph of the package from its source (``ast``, nothing is impo
 and ``from ... import`` of a ``grt`` module, function-local ones included, except those under
 ``if TYPE_CHECKING:`` (they never run). Each module is placed in a layer by :data:`LAYERS`; a module the
 table does not place is an error, so a new module has to be given its layer. Hydra and OmegaConf
-(:data:`CONFIG_LIBRARIES`) may be imported only by the app layer (the top one: ``grt.cli`` and the ``python
--m`` shims) and by :data:`CONFIG_OWNERS` (``grt.config``, which turns the config into the run's plan): the
+(:data:`CONFIG_LIBRARIES`) may be imported only by the app layer (the top one: ``grt.cli``, ``grt.bench``
+and the ``python -m`` shims) and by :data:`CONFIG_OWNERS` (``grt.config``, which turns the config into the run's plan): the
 library below reads plain, typed settings. When the checked tree has ``docs/architecture.md``, its layer map
 (the table of the "Map" section) must name exactly the layers and modules of :data:`LAYERS`.
 
@@ -46,10 +46,10 @@ LAYERS: dict[str, int] = {
     "grt.redteam": 9, "grt.confirm": 9, "grt.outputs": 9, "grt.runner": 9, "grt.report": 9, "grt.rerun": 9,
     "grt.runfolder": 9, "grt.sequential": 9, "grt.shrink": 9, "grt.profile": 9, "grt.swapcheck": 9,
     "grt.rl": 10, "grt.blueteam": 10,
-    "grt.bench": 11,
-    "grt.cli": 12,
+    "grt.bench": 11, "grt.cli": 11,
 }
-TOP = 12  # the app layer: grt.cli, every ``__main__`` module and :data:`SHIMS`
+TOP = 11  # the app layer: grt.cli, the benchmarks (``python -m grt.bench NAME``), every ``__main__`` module and
+# :data:`SHIMS`
 # ``python -m grt.<verb>`` shims: one module each, calling its app in grt.cli.
 SHIMS = ("grt.run", "grt.evaluate", "grt.select", "grt.deform", "grt.train", "grt.serve", "grt.replay",
          "grt.calibrate", "grt.setup")
@@ -59,10 +59,9 @@ CONFIG_LIBRARIES = ("hydra", "omegaconf")
 CONFIG_OWNERS = ("grt.config",)
 # Library modules that still import Hydra or OmegaConf, until they take plain settings from the app layer:
 # listed so that no other module starts to, and named in the OK line until the list is empty.
-CONFIG_READERS_LEFT = ("grt.bench.gpu", "grt.bench.grasp", "grt.bench.insertion", "grt.bench.racing",
-                       "grt.bench.remote", "grt.bench.scale", "grt.blueteam.core", "grt.blueteam.finetune",
-                       "grt.blueteam.study", "grt.evaluators.base", "grt.evaluators.gpu", "grt.evaluators.pool",
-                       "grt.rl.policy_training", "grt.targets", "grt.tasks", "grt.tasks.maniskill.refresh_check")
+CONFIG_READERS_LEFT = ("grt.blueteam.core", "grt.blueteam.finetune",
+                       "grt.blueteam.study", "grt.evaluators.gpu", "grt.evaluators.pool",
+                       "grt.rl.policy_training", "grt.targets", "grt.tasks.maniskill.refresh_check")
 DOCS_MAP = Path("docs") / "architecture.md"
 
 

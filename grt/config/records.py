@@ -4,7 +4,8 @@ A run folder keeps its config in YAML (``run_config.yaml``, Hydra's ``.hydra/con
 line as Hydra overrides. :mod:`grt.runfolder` reads and writes them through these functions, as plain
 Python data: :func:`read_yaml` / :func:`yaml_text` (OmegaConf's YAML, interpolations kept as written),
 :func:`parse_overrides` (Hydra's override grammar, as :class:`Override` values), :class:`ConfigView`
-(dotted keys of a config, its interpolations resolved as OmegaConf resolves them).
+(dotted keys of a config, its interpolations resolved as OmegaConf resolves them), :func:`chosen`
+(the option of a config group the running app chose, to word a message).
 """
 
 from __future__ import annotations
@@ -25,6 +26,16 @@ def read_yaml(path: str | Path) -> Any:
             ``ValueError`` subclasses or carry their own type; callers name the file).
     """
     return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+
+
+def chosen(group: str) -> str | None:
+    """The option of a config group the running Hydra app chose (``policy=NAME``), or ``None`` outside an app."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if HydraConfig.initialized():
+        found = HydraConfig.get().runtime.choices.get(group)
+        return str(found) if found is not None else None
+    return None
 
 
 def yaml_text(data: Mapping) -> str:

@@ -32,6 +32,7 @@ from grt.console import progress as progress_bar
 from grt.errors import UserError
 from grt.evaluators.collision import MAX_HULL_VERTICES, CollisionError, make_collision, mesh_label
 from grt.metrics import score_interval
+from grt.targets import locate
 from grt.tasks.base import SIM_ERROR, TrialOutcome, sim_error
 
 log = logging.getLogger(__name__)
@@ -190,9 +191,7 @@ def evaluator_preflight(evaluator: dict, task: dict, policy: dict) -> None:
         evaluator: the evaluator config as a plain dict (``_target_`` and its keys).
         task, policy: the task and policy configs as plain dicts.
     """
-    from hydra.utils import get_object
-
-    check = getattr(get_object(str(evaluator["_target_"])), "preflight", None)
+    check = getattr(locate(str(evaluator["_target_"]), "evaluator"), "preflight", None)
     if check is not None:
         check(task=task, policy=policy, **{k: v for k, v in evaluator.items() if not k.startswith("_")})
 

@@ -12,10 +12,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from hydra.utils import get_class, get_object
-from omegaconf import OmegaConf
-
 from grt import CONF_DIR
+from grt.config.records import chosen, read_yaml
 from grt.objects import list_objects
 from grt.policies.base import POLICY_KINDS, policy_kind
 from grt.targets import build, locate
@@ -28,8 +26,10 @@ POLICY_CONF = TASK_CONF.parent / "policy"
 
 def _session_target(path: Path, key: str = "session._target_") -> str | None:
     """``session._target_`` (or ``key``) of a task YAML, or of the one it extends (``defaults: [grasp, _self_]``)."""
-    cfg = OmegaConf.load(path)
-    target = OmegaConf.select(cfg, key)
+    cfg = read_yaml(path) or {}
+    target = cfg
+    for part in key.split("."):
+        target = target.get(part) if isinstance(target, Mapping) else None
     if target is not None:
         return str(target)
     for base in cfg.get("defaults") or []:
@@ -51,7 +51,7 @@ TASKS: dict[str, str] = _find_tasks()
 
 def session_class(task: dict) -> type[TaskSession]:
     """The session class of a task config (a plain dict with ``session._target_``), not instantiated."""
-    return get_class(task["session"]["_target_"])
+    return locate(str(task["session"]["_target_"]), "task.session")
 
 
 def get_task(name: str) -> type[TaskSession]:
@@ -62,7 +62,7 @@ def get_task(name: str) -> type[TaskSession]:
     """
     if name not in TASKS:
         raise KeyError(f"unknown task {name!r}; known tasks: {sorted(TASKS)}")
-    return get_class(TASKS[name])
+    return locate(TASKS[name], "task.session")
 
 
 class PolicyKindError(TaskInputError):
@@ -105,7 +105,7 @@ def fitting_policies(task_name: str, kinds: tuple[str, ...], folder: Path = POLI
             continue
         try:
             target = _session_target(path, "_target_")
-            obj = get_object(target) if target is not None else None
+            obj = locate(target, "policy") if target is not None else None
             if isinstance(obj, type) and policy_kind(obj) in kinds:  # a factory (remote) has no fixed kind
                 found.append(path.stem)
         except Exception:  # noqa: BLE001, S112 - a config whose class does not import is simply not listed
@@ -124,16 +124,6 @@ def _policy_class(policy) -> tuple[type | None, object]:
     return (type(policy), policy) if policy is not None else (None, None)
 
 
-def _choice(group: str) -> str | None:
-    """The option of a config group the running Hydra app chose (``policy=NAME``), or ``None``."""
-    from hydra.core.hydra_config import HydraConfig
-
-    if HydraConfig.initialized():
-        found = HydraConfig.get().runtime.choices.get(group)
-        return str(found) if found is not None else None
-    return None
-
-
 def check_fit(task: dict, policy=None) -> None:
     """What needs no object, checked first (before the object is prepared, which takes seconds to minutes): that
     the machine has the Vulkan device the task's simulator needs (:func:`grt.tasks.renderer.check_renderer`) and
@@ -148,7 +138,7 @@ def check_fit(task: dict, policy=None) -> None:
     if isinstance(policy, Mapping) and "_target_" in policy:
         target = locate(str(policy["_target_"]), "policy")  # a class Python cannot find: one line
         if isinstance(target, type):
-            check_policy_kind(task, target, _choice("policy"))
+            check_policy_kind(task, target, chosen("policy"))
 
 
 def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:
@@ -169,7 +159,7 @@ def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:
     """
     cls, built = _policy_class(policy)
     if cls is not None:
-        check_policy_kind(task, cls, _choice("policy"))
+        check_policy_kind(task, cls, chosen("policy"))
     for key in ("socket_object", "handle_object"):  # sessions that rebuild a part from the nominal mesh file
         value = task["session"].get(key)
         if object_scale != 1.0 and value is not None and str(value) not in list_objects():
@@ -259,10 +249,13 @@ def task_object(task, spec, cache_dir: str | Path) -> str:
 
     if str(spec) != ACTOR_OBJECT:
         return str(spec)
-    if not OmegaConf.is_config(task) and not isinstance(task, Mapping) or "session" not in task:
+    if not isinstance(task, Mapping) or "session" not in task:
         raise TaskInputError("object=actor is the swapped actor of a ManiSkill task, and this command has no task "
                              "config; give object=NAME (python -m grt.objects) or a mesh file (meters, GRT's frame)")
-    task = OmegaConf.to_container(task, resolve=True) if not isinstance(task, dict) else task
+    if not isinstance(task, dict):  # an app's config node: its plain data
+        from grt.config import plain
+
+        task = plain(task)
     cls = session_class(task)
     make = getattr(cls, "nominal_object", None)
     if make is None:
