@@ -26,7 +26,7 @@ import importlib
 import importlib.util
 import io
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from grt.errors import UserError
@@ -128,29 +128,44 @@ class MotionPlannerPolicy(EnvDriverPolicy):
             raise NoSolutionError(f"policy.solution={self.solution}: give auto (ManiSkill's solution for the env) "
                                   "or module:function (a solve(env, seed=...) of your own)")
         if env_id:
-            self.check_env(str(env_id))
+            self.check_env(str(env_id), self.solution)
         if control_mode is not None:
             self.check_control_mode(str(control_mode))
         self._solve: Callable | None = None
         self._for: str | None = None
 
-    def check_control_mode(self, control_mode: str) -> None:
+    @classmethod
+    def check_config(cls, cfg: Mapping) -> None:
+        """The constructor's checks of the task that need nothing built (:func:`grt.tasks.check_fit` runs them
+        before the object is prepared): the task's control mode, and an env with a solution.
+
+        Raises:
+            NoSolutionError: as :meth:`check_control_mode` and :meth:`check_env`.
+        """
+        if cfg.get("control_mode") is not None:
+            cls.check_control_mode(str(cfg["control_mode"]))
+        if cfg.get("env_id"):
+            cls.check_env(str(cfg["env_id"]), str(cfg.get("solution", "auto")))
+
+    @classmethod
+    def check_control_mode(cls, control_mode: str) -> None:
         """Refuse a task that steps the robot in another control mode than the solutions' ``pd_joint_pos``.
 
         Raises:
             NoSolutionError: naming both modes and the override that fixes it.
         """
-        if control_mode != self.control_mode:
-            raise NoSolutionError(f"policy=motion_planner steps the robot in {self.control_mode}, the task in "
-                                  f"{control_mode}: add task.session.control_mode={self.control_mode}")
+        if control_mode != cls.control_mode:
+            raise NoSolutionError(f"policy=motion_planner steps the robot in {cls.control_mode}, the task in "
+                                  f"{control_mode}: add task.session.control_mode={cls.control_mode}")
 
-    def check_env(self, env_id: str) -> None:
+    @staticmethod
+    def check_env(env_id: str, solution: str = "auto") -> None:
         """Refuse an env without a solution before any simulation (a file look-up, no import).
 
         Raises:
             NoSolutionError: naming the env ids that have one.
         """
-        if self.solution == "auto" and not has_solution(env_id):
+        if solution == "auto" and not has_solution(env_id):
             raise NoSolutionError(f"policy=motion_planner: ManiSkill has no motion-planning solution for {env_id} "
                                   f"(it has: {', '.join(known_solutions())}); give policy.solution=module:function "
                                   "for a solve(env, seed=...) of your own")

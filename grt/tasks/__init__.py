@@ -127,7 +127,9 @@ def _policy_class(policy) -> tuple[type | None, object]:
 def check_fit(task: dict, policy=None) -> None:
     """What needs no object, checked first (before the object is prepared, which takes seconds to minutes): that
     the machine has the Vulkan device the task's simulator needs (:func:`grt.tasks.renderer.check_renderer`) and
-    that the policy's kind fits the task (its class only, nothing built; :func:`preflight` checks the rest).
+    that the policy's kind fits the task (its class only, nothing built; :func:`preflight` checks the rest), and
+    what the policy class checks of its own config without being built (a ``check_config(cfg)`` classmethod:
+    ``policy=motion_planner``'s control mode and env).
 
     Raises:
         RendererError: no Vulkan device. PolicyKindError: a policy of a kind the task cannot run.
@@ -139,6 +141,9 @@ def check_fit(task: dict, policy=None) -> None:
         target = locate(str(policy["_target_"]), "policy")  # a class Python cannot find: one line
         if isinstance(target, type):
             check_policy_kind(task, target, chosen("policy"))
+            check = getattr(target, "check_config", None)  # a class's own checks of its config, nothing built
+            if callable(check):
+                check(policy)
 
 
 def preflight(task: dict, policy, mesh, object_scale: float = 1.0) -> None:

@@ -86,6 +86,17 @@ def test_without_the_setup_the_planner_is_one_line_naming_it(tmp_path, capsys):
 
 
 @needs_setup
+def test_another_control_mode_is_refused_before_the_object_is_prepared(tmp_path, capsys):
+    """The control mode was checked when the policy was built, after the actor's mesh (seconds to a minute)."""
+    cache = tmp_path / "cache"
+    code, err = refused_by_evaluate(["task=pick_cube", "policy=motion_planner", f"paths.cache_dir={cache}"],
+                                    tmp_path / "out", capsys)
+    errors = [line for line in err.splitlines() if line.startswith("error:")]
+    assert code == 2 and len(errors) == 1 and "add task.session.control_mode=pd_joint_pos" in errors[0], err
+    assert not list(cache.rglob("*.obj")) and "mesh" not in err.replace(errors[0], ""), err
+
+
+@needs_setup
 def test_another_control_mode_or_an_env_without_a_solution_is_refused():
     with pytest.raises(NoSolutionError, match="task.session.control_mode=pd_joint_pos"):
         MotionPlannerPolicy(worker_path=str(MP_DIR), env_id="PickCube-v1", control_mode="pd_ee_delta_pos")
