@@ -145,6 +145,15 @@ def _source_parameters(target: str):
         return None
     return [a.arg for a in [*init.args.posonlyargs, *init.args.args][1:] + init.args.kwonlyargs]
 
+def instantiate(node, **kwargs):
+    """``node`` (a mapping with ``_target_``) instantiated as Hydra does, with no error handling of GRT's (a
+    worker reports its own failures, :func:`worker_error`): with :func:`build`, the library's only way to
+    make an object of a config node."""
+    from hydra.utils import instantiate as hydra_instantiate
+
+    return hydra_instantiate(node, **kwargs)
+
+
 def build(node, key: str, **kwargs):
     """Instantiate ``node`` as Hydra does; a ``_partial_`` node is then called with ``kwargs`` (the arguments
     known only at run time), any other gets them as extra arguments.
@@ -154,8 +163,6 @@ def build(node, key: str, **kwargs):
         ClassError: any other error of the constructor: the class, the error's first line and the file
             that holds the whole traceback.
     """
-    from hydra.utils import instantiate
-
     target = str(node["_target_"])
     locate(target, key)
     try:

@@ -5,8 +5,9 @@ and ``from ... import`` of a ``grt`` module, function-local ones included, excep
 ``if TYPE_CHECKING:`` (they never run). Each module is placed in a layer by :data:`LAYERS`; a module the
 table does not place is an error, so a new module has to be given its layer. Hydra and OmegaConf
 (:data:`CONFIG_LIBRARIES`) may be imported only by the app layer (the top one: ``grt.cli``, ``grt.bench``
-and the ``python -m`` shims) and by :data:`CONFIG_OWNERS` (``grt.config``, which turns the config into the run's plan): the
-library below reads plain, typed settings. When the checked tree has ``docs/architecture.md``, its layer map
+and the ``python -m`` shims) and by :data:`CONFIG_OWNERS` (``grt.config``, which turns the config into
+the run's plan, and ``grt.targets``, which makes the objects a config node names): the library below reads
+plain, typed settings. When the checked tree has ``docs/architecture.md``, its layer map
 (the table of the "Map" section) must name exactly the layers and modules of :data:`LAYERS`.
 
 Usage::
@@ -54,14 +55,14 @@ TOP = 11  # the app layer: grt.cli, the benchmarks (``python -m grt.bench NAME``
 SHIMS = ("grt.run", "grt.evaluate", "grt.select", "grt.deform", "grt.train", "grt.serve", "grt.replay",
          "grt.calibrate", "grt.setup")
 # Libraries that read the composed config (Hydra and OmegaConf), and the modules below the app layer that may
-# import them: the one package that turns the config into the run's plan.
+# import them: the one package that turns the config into the run's plan, and the module that makes the
+# objects a config node names (``_target_``, with Hydra's instantiate) for the library and its workers.
 CONFIG_LIBRARIES = ("hydra", "omegaconf")
-CONFIG_OWNERS = ("grt.config",)
+CONFIG_OWNERS = ("grt.config", "grt.targets")
 # Library modules that still import Hydra or OmegaConf, until they take plain settings from the app layer:
 # listed so that no other module starts to, and named in the OK line until the list is empty.
 CONFIG_READERS_LEFT = ("grt.blueteam.core", "grt.blueteam.finetune",
-                       "grt.blueteam.study", "grt.evaluators.gpu", "grt.evaluators.pool",
-                       "grt.rl.policy_training", "grt.targets", "grt.tasks.maniskill.refresh_check")
+                       "grt.blueteam.study", "grt.rl.policy_training")
 DOCS_MAP = Path("docs") / "architecture.md"
 
 
@@ -286,8 +287,9 @@ def check(root: Path, package: str = PACKAGE, layers: dict[str, int] = LAYERS) -
     for module, path in modules.items():
         if layer_of(module, layers) is not None and not may_read_config(module, layers):
             problems += [f"{_where(path, line, root)}: {module} imports {name}: Hydra and OmegaConf belong to the "
-                         f"app layer (grt.cli, the python -m shims) and {', '.join(CONFIG_OWNERS)}, which turns the "
-                         "config into the run's plan" for name, line in config_imports(path)]
+                         "app layer (grt.cli, grt.bench, the python -m shims), grt.config, which turns the config "
+                         "into the run's plan, and grt.targets, which makes the objects a config names"
+                         for name, line in config_imports(path)]
     problems += docs_problems(root, layers)
     unique_edges = {(e.source, e.target) for e in edges}
     return problems, len(modules), len(unique_edges)

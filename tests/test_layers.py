@@ -124,8 +124,9 @@ def test_the_command_fails_with_one_line_per_violation(tmp_path):
 
 
 def test_hydra_and_omegaconf_only_in_the_app_layer_and_the_config_package(tmp_path, checker):
-    """The library reads plain, typed settings: only ``grt.cli``, the shims and ``grt.config`` (which turns the
-    config into the plan) import Hydra or OmegaConf, function-local imports included."""
+    """The library reads plain, typed settings: only ``grt.cli``, ``grt.bench``, the shims, ``grt.config`` (which
+    turns the config into the plan) and ``grt.targets`` import Hydra or OmegaConf, function-local imports
+    included."""
     root = _package(tmp_path, {
         "grt/config/__init__.py": "from omegaconf import OmegaConf\n",
         "grt/cli/__init__.py": "",
@@ -136,8 +137,8 @@ def test_hydra_and_omegaconf_only_in_the_app_layer_and_the_config_package(tmp_pa
         "grt/selectors/__init__.py": "import omegaconf.errors\n",
     })
     problems, _, _ = checker.check(root)
-    why = ("Hydra and OmegaConf belong to the app layer (grt.cli, the python -m shims) and grt.config, which "
-           "turns the config into the run's plan")
+    why = ("Hydra and OmegaConf belong to the app layer (grt.cli, grt.bench, the python -m shims), grt.config, "
+           "which turns the config into the run's plan, and grt.targets, which makes the objects a config names")
     assert problems == [f"{Path('grt/geometry/mesh.py')}:5: grt.geometry.mesh imports hydra.utils: {why}",
                         f"{Path('grt/selectors/__init__.py')}:1: grt.selectors imports omegaconf.errors: {why}"]
 

@@ -28,6 +28,15 @@ def read_yaml(path: str | Path) -> Any:
     return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
 
 
+def resolved(source: str | Path | Mapping) -> Any:
+    """A YAML file, or a mapping, as plain data with its interpolations resolved (``defaults`` left out: a
+    file read alone is not composed)."""
+    node = OmegaConf.create(dict(source)) if isinstance(source, Mapping) else OmegaConf.load(source)
+    if isinstance(node, DictConfig):
+        node.pop("defaults", None)
+    return OmegaConf.to_container(node, resolve=True)
+
+
 def chosen(group: str) -> str | None:
     """The option of a config group the running Hydra app chose (``policy=NAME``), or ``None`` outside an app."""
     from hydra.core.hydra_config import HydraConfig

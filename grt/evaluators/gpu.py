@@ -34,6 +34,7 @@ import trimesh
 from grt.errors import UserError
 from grt.evaluators.base import Job, OnTrial, PoolEvaluator, TrialPool, sim_error
 from grt.evaluators.collision import MAX_HULL_VERTICES
+from grt.targets import instantiate, locate
 
 BACKENDS = ("physx_cuda", "physx_cpu")
 
@@ -100,8 +101,6 @@ def check_batched(task: dict, policy: dict | None = None, backend: str = "physx_
     Raises:
         GpuEvaluatorError: one line naming what cannot run batched and what to use instead.
     """
-    from hydra.utils import get_object
-
     from grt.policies.base import policy_kind
     from grt.tasks import session_class
     from grt.tasks.batched import EpisodeSession
@@ -116,7 +115,7 @@ def check_batched(task: dict, policy: dict | None = None, backend: str = "physx_
         raise GpuEvaluatorError(f"evaluator.backend={backend} runs {limit} sub-scene{'s' * (limit != 1)} per env, "
                                 f"evaluator.max_envs={max_envs}: set evaluator.max_envs={limit}")
     target = (policy or {}).get("_target_")
-    obj = get_object(str(target)) if target else None
+    obj = locate(str(target), "policy") if target else None
     if isinstance(obj, type) and policy_kind(obj) != "closed_loop":
         raise GpuEvaluatorError(f"evaluator=gpu steps every sub-scene with one batched policy (observations (N, ...) "
                                 f"in, actions out); {obj.__name__} is per-env ({policy_kind(obj) or 'no act method'}, "
@@ -213,8 +212,6 @@ class GpuPool(TrialPool):
 
     def _session(self, num_envs: int):
         """The env for ``num_envs`` sub-scenes: the current one, or a new one (other size, or ``recreate_every``)."""
-        from hydra.utils import instantiate
-
         self._uses += 1
         if self.session is not None and self.session.num_envs == num_envs and self._uses <= self.recreate_every:
             return self.session
@@ -233,9 +230,7 @@ class GpuPool(TrialPool):
         return self._policies[key]
 
     def _build_policy(self, policy: dict):
-        from hydra.utils import get_object, instantiate
-
-        target = get_object(str(policy["_target_"]))
+        target = locate(str(policy["_target_"]), "policy")
         extra = {"device": self.device} if "device" not in policy and _accepts(target, "device") else {}
         return instantiate(policy, **extra)
 

@@ -34,14 +34,13 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
 
-import hydra.utils
 import numpy as np
 import trimesh
 
 from grt.evaluators.base import Job, OnTrial, TrialPool, is_stock, sim_error
 from grt.evaluators.worker_env import WorkerPathError, accept_numpy2_pickles, spawn_path, worker_path
 from grt.policies.base import PolicyInterrupted, PolicyServerError, PolicyUnavailable
-from grt.targets import worker_error
+from grt.targets import instantiate, worker_error
 from grt.tasks.base import TrialOutcome
 
 __all__ = ["Job", "WorkerPool", "build_session", "prepare_job", "run_seed", "sim_error", "worker_limits"]
@@ -53,7 +52,7 @@ MAX_INTERRUPTIONS = 3
 
 def build_session(task: dict, policy: dict):
     """Instantiate ``task["session"]`` with the instantiated ``policy`` (plain dicts, Hydra style)."""
-    return hydra.utils.instantiate(task["session"], policy=hydra.utils.instantiate(policy), _convert_="all")
+    return instantiate(task["session"], policy=instantiate(policy), _convert_="all")
 
 
 # ------------------------------------------------------------------------------------ worker side
@@ -184,7 +183,7 @@ def _use_policy(session, policy: dict | None, using: dict) -> str | None:
     if key == using["key"]:
         return None
     try:
-        made = hydra.utils.instantiate(policy)
+        made = instantiate(policy)
         if hasattr(session, "set_policy"):
             session.set_policy(made)
         else:

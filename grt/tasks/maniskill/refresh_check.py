@@ -20,23 +20,21 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from omegaconf import OmegaConf
 
 from grt import CONF_DIR
+from grt.config.records import resolved
 from grt.tasks.base import TaskInputError
 
 
 def session_settings(task: str | Path | dict) -> dict:
     """The ``session`` settings of a task: a shipped task's name, a task YAML's path, or a task config dict."""
     if isinstance(task, dict):
-        node = OmegaConf.create(task)
+        session = resolved(task)["session"]
     else:
         path = Path(task) if str(task).endswith((".yaml", ".yml")) else Path(CONF_DIR) / "task" / f"{task}.yaml"
         if not path.is_file():
             raise TaskInputError(f"{task}: no such task YAML (a shipped task's name, or the path of yours)")
-        node = OmegaConf.load(path)
-        node.pop("defaults", None)
-    session = OmegaConf.to_container(node, resolve=True)["session"]
+        session = resolved(path)["session"]
     return {k: v for k, v in session.items() if k not in ("_target_", "policy")}
 
 
