@@ -68,10 +68,10 @@ def unfinished(root: Path) -> list[Path]:
     """The red-team run folders under ``root`` (a sweep's jobs; ``root`` itself is not counted) that never
     wrote ``summary.json`` and hold no ``error.txt``: killed, stopped or still running. A run folder is one
     with the run's record (``run_config.yaml``) or Hydra's record of a ``grt.run`` job (a job stopped before
-    its record was saved)."""
+    its record was saved); one holding a kept copy ``summary_<name>.json`` (``experiments/``) is finished."""
     found = {p.parent for p in root.rglob("run_config.yaml")}
     found |= {p.parent.parent for p in root.rglob(".hydra/hydra.yaml") if _is_run_job(p)}
-    return sorted(p for p in found if p != root and not (p / "summary.json").exists()
+    return sorted(p for p in found if p != root and not any(_is_summary_name(f.name) for f in p.glob("summary*.json"))
                   and not (p / "error.txt").exists() and ".submitit" not in p.parts)
 
 

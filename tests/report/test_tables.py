@@ -82,3 +82,17 @@ def test_committed_readmes_are_up_to_date():
         for m in BLOCK.finditer(readme.read_text()):
             args = shlex.split(m.group("args"))
             assert m.group("body") == render(readme.parent / args[0], records="--records" in args) + "\n", readme
+
+
+def test_a_kept_run_record_is_not_an_unfinished_job(tmp_path, capsys):
+    """experiments/ keeps a run's record as summary_<name>.json beside its run_config.yaml: a finished run, not
+    a job that never wrote summary.json; a record without any summary still is one."""
+    kept, stopped = tmp_path / "kept", tmp_path / "stopped"
+    kept.mkdir()
+    stopped.mkdir()
+    shutil.copyfile(DRAWER / "summary_manual_ss.json", kept / "summary_kept.json")
+    for folder in (kept, stopped):
+        (folder / "run_config.yaml").write_text("task: {}\n")
+    main([str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "1 unfinished job(s)" in out and f"- {stopped}" in out and f"- {kept}\n" not in out + "\n"
