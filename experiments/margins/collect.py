@@ -1,6 +1,7 @@
 """Copy the records of the margins runs (``bash experiments/margins/run.sh``) into ``experiments/margins/runs``.
 
-Per cell (a run folder under OUT): ``summary_<cell>.json``, ``run_config.yaml``, ``curve.png``, ``shapes.png``,
+Per cell (a run folder under OUT): ``summary_<cell>.json``, ``run_config.yaml`` (the paths inside this repository
+written relative to it, as the other committed records), ``curve.png``, ``shapes.png``,
 the confirmation's and the shrink's journals (every fresh episode behind the confirmed drops and the shrunk
 sizes), and its latest profile as ``profile_<cell>.json`` / ``profile_<cell>.png`` (the names
 ``python -m grt.report`` pairs with the summary). Files already here are replaced by the run's.
@@ -15,6 +16,12 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+
+
+def relative_paths(text: str) -> str:
+    """``text`` with this repository's absolute paths written relative to its root."""
+    return text.replace(f"{ROOT}/grt/../", "").replace(f"{ROOT}/", "")
 
 
 def collect(out: Path) -> list[str]:
@@ -24,7 +31,8 @@ def collect(out: Path) -> list[str]:
         dest = HERE / "runs" / run.name
         dest.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(run / "summary.json", dest / f"summary_{run.name}.json")
-        for name in ("run_config.yaml", "curve.png", "shapes.png", *(p.name for p in run.glob("confirm-*.jsonl")),
+        (dest / "run_config.yaml").write_text(relative_paths((run / "run_config.yaml").read_text()))
+        for name in ("curve.png", "shapes.png", *(p.name for p in run.glob("confirm-*.jsonl")),
                      *(p.name for p in run.glob("shrink-*.jsonl"))):
             if (run / name).is_file():
                 shutil.copyfile(run / name, dest / name)

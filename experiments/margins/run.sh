@@ -59,7 +59,15 @@ cell push_cube_state    "task=push_cube policy=push_cube_state"    "$CUBE_SIZES 
 cell grasp_mug_antipodal    "object=mug policy=antipodal"       "$GRASP_PROFILE"
 cell grasp_mug_contact_graspnet    "object=mug policy=contact_graspnet"    "$GRASP_PROFILE"
 cell insertion_plug_state "task=insertion policy=insertion_state selector=manual" "$PLUG_SIZES profile.shapes=4 profile.trials=16"
-cell insertion_plug_pcd   "task=insertion policy=insertion_pcd selector=manual"   "$PLUG_SIZES profile.shapes=4 profile.trials=16"
+# The point-cloud policy's profile is reduced (four sizes, 3 shapes x 12 episodes) so that the folder stays
+# within about two hours on a loaded 2-core machine.
+cell insertion_plug_pcd   "task=insertion policy=insertion_pcd selector=manual" \
+  "profile.sizes=[0.5,1,2,4] profile.shapes=3 profile.trials=12"
+# A search for the smallest CrashShape (budget.size_penalty=1: the search is told score + S0 x SS / tau) against
+# search-then-shrink (the cells above): the same protocol, the smallest confirmed shape of each.
+cell grasp_mug_antipodal_size1 "object=mug policy=antipodal budget.size_penalty=1" "$GRASP_PROFILE"
+cell insertion_plug_state_size1 "task=insertion policy=insertion_state selector=manual budget.size_penalty=1" \
+  "$PLUG_SIZES profile.shapes=4 profile.trials=16"
 cell grasp_bottle_antipodal "object=bottle policy=antipodal"    "$GRASP_PROFILE"
 cell grasp_can_antipodal    "object=can policy=antipodal"       "$GRASP_PROFILE"
 cell grasp_bottle_contact_graspnet "object=bottle policy=contact_graspnet" "$GRASP_PROFILE"
