@@ -60,7 +60,7 @@ def row(name: str, r: dict) -> str:
 
 
 def tables() -> None:
-    for group in ("before", "after", "round"):
+    for group in ("after", "round", "friction"):
         files = sorted((HERE / group).glob("*/calibration.json"))
         if not files:
             continue
