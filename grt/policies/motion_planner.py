@@ -46,6 +46,19 @@ class NoSolutionError(UserError):
     """An env for which ManiSkill has no motion-planning solution, or a ``solution`` that cannot be found."""
 
 
+def seed_planner(seed: int) -> None:
+    """Seed the random joint configurations of mplib's inverse kinematics for one episode.
+
+    When its first IK attempt misses, mplib restarts from random configurations that pinocchio draws from the
+    C library's ``rand()``: one stream per process, never seeded by ManiSkill's solutions. A trial's plan then
+    depended on how many draws the plans its worker made before had taken (a failing trial re-ran as a
+    success by ``grt.replay`` in a fresh process); seeded with the episode's seed, it depends on the episode.
+    """
+    import ctypes
+
+    ctypes.CDLL(None).srand(ctypes.c_uint(seed % 2**32))
+
+
 def _setup_missing(why: str) -> MotionPlanningSetupError:
     return MotionPlanningSetupError(f"policy=motion_planner needs mplib with numpy 1.26 in its simulator workers "
                                     f"(mplib crashes under numpy 2), and {why}: run `{SETUP_COMMAND}` once")
@@ -201,6 +214,7 @@ class MotionPlannerPolicy(EnvDriverPolicy):
         self.check_control_mode(str(raw.control_mode))
         spec = getattr(env, "spec", None) or raw.spec
         function = self._function(spec.id if spec is not None else type(raw).__name__)
+        seed_planner(int(seed))
         out = io.StringIO()
         with contextlib.redirect_stdout(out) if self.quiet else contextlib.nullcontext():
             result = function(env, seed=int(seed))

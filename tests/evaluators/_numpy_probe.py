@@ -43,3 +43,46 @@ def refuse(reason: str) -> None:
     from grt.errors import UserError
 
     raise UserError(reason)
+
+
+_PLANNER = []
+
+
+def _planner():
+    """mplib's planner for the Panda (numpy 1.26), made once per process."""
+    import os
+
+    import mani_skill
+    import mplib
+
+    if not _PLANNER:
+        urdf = os.path.join(os.path.dirname(mani_skill.__file__), "assets", "robots", "panda", "panda_v2.urdf")
+        _PLANNER.append(mplib.Planner(urdf=urdf, srdf=urdf.replace(".urdf", ".srdf"), move_group="panda_hand_tcp"))
+    return _PLANNER[0]
+
+
+def first_restart(env, seed):
+    """A ``solve(env, seed=...)``: prints the first random configuration mplib's IK would restart from."""
+    print(" ".join(f"{q:.6f}" for q in _planner().pinocchio_model.get_random_configuration()))
+    return 0
+
+
+class _Env:
+    """Just what :meth:`MotionPlannerPolicy.solve` reads of an env."""
+
+    class unwrapped:  # noqa: N801 - the env attribute's name
+        control_mode = "pd_joint_pos"
+        spec = None
+
+    spec = None
+
+
+def ik_restarts(worker_path: str, seed: int, draws_before: int) -> str:
+    """The first random IK restart of an episode seeded ``seed`` that ``MotionPlannerPolicy.solve`` runs
+    (``first_restart`` as its solution), after ``draws_before`` draws by earlier plans of the same process."""
+    from grt.policies.motion_planner import MotionPlannerPolicy
+
+    policy = MotionPlannerPolicy(worker_path=worker_path, solution="_numpy_probe:first_restart")
+    for _ in range(draws_before):
+        _planner().pinocchio_model.get_random_configuration()
+    return policy.solve(_Env(), seed)["status"]

@@ -85,3 +85,16 @@ def test_a_command_runs_a_worker_path_policy_in_a_process_started_with_it(monkey
     assert run_in_worker([str(MP_DIR)], _numpy_probe.numpy_version, 0.5) == ("1.26.4", 6.5)
     with pytest.raises(UserError, match="^the set-up is missing$"):
         run_in_worker([str(MP_DIR)], _numpy_probe.refuse, "the set-up is missing")
+
+
+@needs_setup
+def test_the_planners_ik_restarts_follow_the_episode_seed_not_the_workers_past(monkeypatch):
+    """mplib's IK restarts drew from one process-wide C ``rand()`` stream: a planner trial's outcome depended on
+    the plans its worker had made before (a trial that failed in a run re-ran as a success in a fresh process)."""
+    monkeypatch.syspath_prepend(str(HERE))
+    import _numpy_probe
+
+    fresh = run_in_worker([str(MP_DIR)], _numpy_probe.ik_restarts, str(MP_DIR), 7, 0)
+    assert len(fresh.split()) == 9  # the Panda's 7 joints and 2 fingers
+    assert run_in_worker([str(MP_DIR)], _numpy_probe.ik_restarts, str(MP_DIR), 7, 25) == fresh
+    assert run_in_worker([str(MP_DIR)], _numpy_probe.ik_restarts, str(MP_DIR), 8, 0) != fresh
