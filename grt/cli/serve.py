@@ -96,12 +96,12 @@ def main(cfg: DictConfig) -> None:
     with exit_on_user_error():
         validate(cfg, classes=("policy", "task.session"))
         server = make_server(cfg)
-    print(server.url, flush=True)
-    info = server.info
-    print(f"serving {info['name']} {info['version']} ({info['kind']} policy for task {info['task']!r}"
-          + (f", observations {info['obs']}, {info['action_size']} actions" if info["kind"] == "batched" else "")
-          + ("; token required" if server.token else "") + "); Ctrl-C stops", flush=True)
-    try:
+    try:  # a Ctrl-C from here on (as soon as the URL is out) stops the server cleanly
+        print(server.url, flush=True)
+        info = server.info
+        print(f"serving {info['name']} {info['version']} ({info['kind']} policy for task {info['task']!r}"
+              + (f", observations {info['obs']}, {info['action_size']} actions" if info["kind"] == "batched" else "")
+              + ("; token required" if server.token else "") + "); Ctrl-C stops", flush=True)
         server.serve_forever()
     except Terminated:  # a scheduler's or `kill`'s stop: exit code 143, as every GRT app
         print("terminated (SIGTERM)", file=sys.stderr, flush=True)

@@ -24,10 +24,11 @@ def _task(folder: Path, name: str, text: str) -> Path:
 
 @pytest.mark.parametrize(("name", "edit", "words"), [
     ("tabbed", lambda t: t.replace("\n  obs_mode:", "\n\tobs_mode:"),
-     ["tabbed.yaml, line 20, column 1: YAML cannot read the config file (found a TAB character",
+     ["tabbed.yaml, line {obs_mode:}, column 1: YAML cannot read the config file (found a TAB character",
       "YAML indents with spaces only"]),
     ("broken", lambda t: t.replace("\nscore: success", "\nscore: [success"),
-     ["broken.yaml, line 12, column 1: YAML cannot read the config file (expected ',' or ']'", "fix the YAML there"]),
+     ["broken.yaml, line {score:}, column 1: YAML cannot read the config file (expected ',' or ']'",
+      "fix the YAML there"]),
     ("noenv", lambda t: t.replace("env_id: PushCube-v1\n", ""),
      ["task.session.env_id reads a setting the config does not have (task.session.env_id: ${..env_id})",
       "add env_id: to the task config (or give task.env_id=VALUE)"]),
@@ -36,7 +37,12 @@ def _task(folder: Path, name: str, text: str) -> Path:
 ])
 @pytest.mark.parametrize("how", ["searchpath", "config-dir"])
 def test_a_broken_task_yaml_of_the_users_is_one_line_and_leaves_nothing(tmp_path, capsys, name, edit, words, how):
-    conf = _task(tmp_path / "conf", name, edit(PUSH_CUBE))
+    text = edit(PUSH_CUBE)
+    conf = _task(tmp_path / "conf", name, text)
+    lines = text.splitlines()  # where YAML stops: the TAB's line; the line after an unclosed [
+    words = [w.replace("{obs_mode:}", str(next(i for i, t in enumerate(lines, 1) if "obs_mode:" in t)))
+              .replace("{score:}", str(next(i for i, t in enumerate(lines, 1) if t.startswith("score:")) + 1))
+             for w in words]
     where = [f"hydra.searchpath=[file://{conf}]"] if how == "searchpath" else ["--config-dir", str(conf)]
     out = tmp_path / "out"
     code, _, err = app("evaluate", *where, f"task={name}", "policy=push_cube_expert", f"hydra.run.dir={out}",
