@@ -19,9 +19,12 @@ import numpy as np
 COLUMNS = ("trials_used", "trials_to_first_confirmed", "final_drop", "auc")
 
 
-def label(r: dict) -> str:
-    """``topdm``, ``topdm + racing``: the method of a run."""
-    return f"{r['optimizer']}{' + racing' if r.get('racing') else ''}"
+def label(r: dict, optimizer: str | None = None, racing: bool | None = None) -> str:
+    """``topdm``, ``topdm + SS + racing``, ``topdm + size 1``: the method of a run (a Smoothness-Score budget
+    and a size penalty are other searches, not the same method); ``optimizer``/``racing`` replace the run's."""
+    racing = r.get("racing") if racing is None else racing
+    return (f"{optimizer or r['optimizer']}" + (" + SS" if r.get("tau") is not None else "")
+            + (f" + size {r['size_penalty']:g}" if r.get("size_penalty") else "") + (" + racing" if racing else ""))
 
 
 def _interval(values: list[float], low: float = 0.0, high: float = math.inf) -> tuple[float, float, float]:
@@ -58,9 +61,10 @@ def markdown(rows: list[dict]) -> str:
     lines = ["| task | policy | method | runs | trials used | vs TOPDM without racing | trials to 1st confirmed "
              "CrashShape (runs with one) | Final Drop (%) ↑ | AUC ↑ |", "|" + "---|" * 9]
     for (task, policy, method), rs in found.items():
-        base = found.get((task, policy, "topdm"))
+        plain = label(rs[0], optimizer="topdm", racing=False)  # TOPDM without racing, same budget and penalty
+        base = found.get((task, policy, plain))
         ratio = "-"
-        if base and method != "topdm":
+        if base and method != plain:
             paired = {(r["object"], r.get("seed")): r["trials_used"] for r in base}
             pairs = [r["trials_used"] / paired[(r["object"], r.get("seed"))] for r in rs
                      if (r["object"], r.get("seed")) in paired]
