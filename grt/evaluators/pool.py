@@ -409,7 +409,7 @@ class WorkerPool(TrialPool):
             self._poll(lambda *_: None, deque(), {})
 
     def _poll(self, on_trial, pending: deque, crashes: dict) -> None:
-        """Wait up to a second for messages and handle them; kill and replace a worker silent too long."""
+        """Wait up to a second for messages and handle them; kill and replace a worker that stays quiet past its timeout."""
         ready = wait([w.conn for w in self.workers] + [w.proc.sentinel for w in self.workers], timeout=1.0)
         for w in list(self.workers):
             if w.conn in ready or w.proc.sentinel in ready:
