@@ -137,13 +137,19 @@ def margins_markdown(rows: list[dict]) -> str:
         prof, shrink = profile_of(r), r.get("shrink")
         if not prof and not shrink:
             continue
-        lines.append(f"| {r['task']} | {r['object']} | {r.get('policy') or '-'} | {_s0(r, prof)} | "
+        lines.append(f"| {r['task']} | {r['object']} | {_policy(r)} | {_s0(r, prof)} | "
                      f"{_random_cell(prof)} | {_adversarial_cell(prof)} | {_smallest_cell(r)} |")
     if not lines:
         return ""
     head = ["| task | object | policy | S0 (profile episodes) | random margin (mm) | adversarial margin (mm) | "
             "smallest confirmed CrashShape: largest displacement (mm), α, σ equivalent |", "|" + "---|" * 7]
     return "\n".join(head + lines)
+
+
+def _policy(r: dict) -> str:
+    """The policy of a row, ``+ size λ`` for a search for the smallest CrashShape (``budget.size_penalty``), so
+    that it is told apart from the same policy's plain search."""
+    return (r.get("policy") or "-") + (f" (+ size {r['size_penalty']:g})" if r.get("size_penalty") else "")
 
 
 def _s0(r: dict, prof: dict | None) -> str:
@@ -210,7 +216,7 @@ def plot_margins(rows: list[dict], path: Path, small: dict | None = None) -> Pat
             ax.errorbar([hi], [y + 0.12], xerr=[[hi - max(lo, 1e-3)], [0]], fmt="o", color="tab:red", capsize=3)
         if r.get("shrink"):
             ax.plot([min(s["largest_mm"] for s in r["shrink"]["shapes"])], [y], "kx")
-    ax.set_yticks(range(len(found)), [f"{r['object']} / {r.get('policy') or '-'}" for r, _ in found], fontsize=8)
+    ax.set_yticks(range(len(found)), [f"{r['object']} / {_policy(r)}" for r, _ in found], fontsize=8)
     ax.set_xscale("log")
     ax.set_xlabel("size: largest surface displacement (mm)")
     ax.set_title("margins: random (grey), adversarial (red), smallest shrunk CrashShape (x)"
