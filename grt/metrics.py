@@ -96,14 +96,16 @@ def delta_complexity(nominal_entropy: float, candidates: Sequence[tuple[float, f
 
 
 def wilson_interval(successes: float, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95% Wilson score interval of a binomial proportion (well-behaved at 0 and 1 and small n)."""
+    """95% Wilson score interval of a binomial proportion (well-behaved at 0 and 1 and small n); it always holds
+    the observed proportion (at 0 or 1 rounding would otherwise leave the bound a hair inside, e.g.
+    0.9999999999999999 for 6 of 6)."""
     if n <= 0:
         return (float("nan"), float("nan"))
     p = successes / n
     denom = 1 + z * z / n
     center = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return (max(0.0, center - half), min(1.0, center + half))
+    return (max(0.0, min(p, center - half)), min(1.0, max(p, center + half)))
 
 
 def mean_interval(values: Sequence[float], z: float = 1.96) -> tuple[float, float]:

@@ -104,3 +104,11 @@ def test_score_interval_refuses_wilson_on_continuous_scores_and_unknown_methods(
         metrics.score_interval([0.31, 0.28], "wilson")
     with pytest.raises(ValueError, match="auto, wilson, normal, bootstrap"):
         metrics.score_interval([0.31], "student")
+
+
+def test_the_wilson_interval_always_holds_the_observed_proportion():
+    for n in range(1, 129):
+        for k in (0, n // 3, n // 2, n):
+            low, high = metrics.wilson_interval(k, n)
+            assert 0.0 <= low <= k / n <= high <= 1.0, (k, n, low, high)
+        assert metrics.wilson_interval(n, n)[1] == 1.0 and metrics.wilson_interval(0, n)[0] == 0.0

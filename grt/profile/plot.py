@@ -24,7 +24,7 @@ def profile_figure(profile: dict) -> plt.Figure:
     if rnd:
         x = [r["size_mm"] for r in rnd]
         y = [r["score"] for r in rnd]
-        err = [[r["score"] - r["ci95"][0] for r in rnd], [r["ci95"][1] - r["score"] for r in rnd]]
+        err = _bars(y, [r["ci95"] for r in rnd])
         ax.errorbar(x, y, yerr=err, fmt="-o", color="tab:gray", capsize=3,
                     label=f"random ({profile['shapes']} shapes x {profile['trials']} episodes per size)")
         for r in rnd:
@@ -37,7 +37,7 @@ def profile_figure(profile: dict) -> plt.Figure:
             continue
         x = [v["size_mm"] for v in levels]
         y = [v["score"] for v in levels]
-        err = [[v["score"] - v["ci95"][0] for v in levels], [v["ci95"][1] - v["score"] for v in levels]]
+        err = _bars(y, [v["ci95"] for v in levels])
         ax.errorbar(x, y, yerr=err, fmt="-", color=color, capsize=3, label=f"adversarial: rank-{d['rank']} direction")
         for v in levels:
             ax.scatter([v["size_mm"]], [v["score"]], s=30, color=color if v["confirmed"] else "white",
@@ -58,6 +58,13 @@ def profile_figure(profile: dict) -> plt.Figure:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     return fig
+
+
+def _bars(scores: list[float], intervals: list) -> list[list[float]]:
+    """Matplotlib's ``yerr`` (below, above) of scores with their 95% intervals, never negative (an interval
+    from an older profile.json may leave a score a rounding error outside it)."""
+    return [[max(0.0, s - ci[0]) for s, ci in zip(scores, intervals, strict=True)],
+            [max(0.0, ci[1] - s) for s, ci in zip(scores, intervals, strict=True)]]
 
 
 def plot_profile(profile: dict, path: Path) -> Path:
