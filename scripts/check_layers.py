@@ -59,10 +59,6 @@ SHIMS = ("grt.run", "grt.evaluate", "grt.select", "grt.deform", "grt.train", "gr
 # objects a config node names (``_target_``, with Hydra's instantiate) for the library and its workers.
 CONFIG_LIBRARIES = ("hydra", "omegaconf")
 CONFIG_OWNERS = ("grt.config", "grt.targets")
-# Library modules that still import Hydra or OmegaConf, until they take plain settings from the app layer:
-# listed so that no other module starts to, and named in the OK line until the list is empty.
-CONFIG_READERS_LEFT = ("grt.blueteam.core", "grt.blueteam.finetune",
-                       "grt.blueteam.study", "grt.rl.policy_training")
 DOCS_MAP = Path("docs") / "architecture.md"
 
 
@@ -161,7 +157,7 @@ def config_imports(path: Path, libraries: tuple[str, ...] = CONFIG_LIBRARIES) ->
 def may_read_config(module: str, layers: dict[str, int] = LAYERS) -> bool:
     """Whether ``module`` may import Hydra or OmegaConf: it is in the app layer or in :data:`CONFIG_OWNERS`."""
     owned = any(module == owner or module.startswith(f"{owner}.") for owner in CONFIG_OWNERS)
-    return owned or layer_of(module, layers) == TOP or module in CONFIG_READERS_LEFT
+    return owned or layer_of(module, layers) == TOP
 
 
 def documented_layers(text: str) -> dict[str, int] | None:
@@ -313,9 +309,8 @@ def main(argv: list[str] | None = None) -> int:
     if problems:
         print(f"{len(problems)} layer violation(s) in {n_modules} modules", file=sys.stderr)
         return 1
-    left = f" (and, still, {len(CONFIG_READERS_LEFT)} listed modules)" if CONFIG_READERS_LEFT else ""
     print(f"OK: {n_modules} modules, {n_edges} import edges, no cycle, no upward import, Hydra and OmegaConf "
-          f"only in the app layer and {', '.join(CONFIG_OWNERS)}{left}, {DOCS_MAP}'s layer map as measured")
+          f"only in the app layer and {', '.join(CONFIG_OWNERS)}, {DOCS_MAP}'s layer map as measured")
     return 0
 
 

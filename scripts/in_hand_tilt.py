@@ -31,8 +31,6 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=40, help="control steps at rest before measuring")
     args = parser.parse_args()
 
-    from omegaconf import OmegaConf
-
     from grt.blueteam.core import load_run, name_of, run_geometry
     from grt.cli._common import exit_on_user_error
     from grt.outputs import crash_records
@@ -40,14 +38,14 @@ def main() -> None:
     from grt.tasks.insertion import InsertionSession
 
     with exit_on_user_error(NotInsertionError):
-        cfg, records = load_run(args.run)
-        if cfg.task.name != "insertion":
-            raise NotInsertionError(f"{args.run} is a {cfg.task.name} run: the in-hand tilt is measured for insertion runs")
-        nominal, deformer, collision = run_geometry(cfg, args.run, cfg.paths.cache_dir)
-        session_cfg = OmegaConf.to_container(cfg.task.session, resolve=True)
-        session_cfg.pop("_target_", None)
+        run, records = load_run(args.run)
+        if run.task["name"] != "insertion":
+            raise NotInsertionError(f"{args.run} is a {run.task['name']} run: the in-hand tilt is measured for "
+                                    "insertion runs")
+        nominal, deformer, collision = run_geometry(run, run.cache_dir)
+        session_cfg = {k: v for k, v in run.task["session"].items() if k != "_target_"}
         session_cfg["cloud_points"] = 0
-        seeds = episode_seeds(int(cfg.budget.seed), args.episodes)
+        seeds = episode_seeds(int(run.budget.seed), args.episodes)
         with InsertionSession(policy=None, **session_cfg) as session:  # no policy: the hand is held still
             def tilts(mesh) -> list[float]:
                 session.load_object(mesh, collision.parts(mesh))

@@ -135,11 +135,14 @@ def test_hydra_and_omegaconf_only_in_the_app_layer_and_the_config_package(tmp_pa
         "grt/geometry/__init__.py": "",
         "grt/geometry/mesh.py": "import os\n\n\ndef f():\n    from hydra.utils import instantiate\n",
         "grt/selectors/__init__.py": "import omegaconf.errors\n",
+        "grt/blueteam/__init__.py": "",  # the apps' bodies too: they read the typed specs the apps make
+        "grt/blueteam/study.py": "from omegaconf import DictConfig\n",
     })
     problems, _, _ = checker.check(root)
     why = ("Hydra and OmegaConf belong to the app layer (grt.cli, grt.bench, the python -m shims), grt.config, "
            "which turns the config into the run's plan, and grt.targets, which makes the objects a config names")
-    assert problems == [f"{Path('grt/geometry/mesh.py')}:5: grt.geometry.mesh imports hydra.utils: {why}",
+    assert problems == [f"{Path('grt/blueteam/study.py')}:1: grt.blueteam.study imports omegaconf: {why}",
+                        f"{Path('grt/geometry/mesh.py')}:5: grt.geometry.mesh imports hydra.utils: {why}",
                         f"{Path('grt/selectors/__init__.py')}:1: grt.selectors imports omegaconf.errors: {why}"]
 
 

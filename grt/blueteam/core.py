@@ -19,25 +19,20 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from omegaconf import DictConfig, OmegaConf
 
-from grt.errors import UserError
+from grt.blueteam.spec import BlueTeamError, check_guard
 from grt.evaluators.collision import make_collision
 from grt.evaluators.sim import SimEvaluator
-from grt.geometry.deform import ShapeDeformer, deformer_options
+from grt.geometry.deform import ShapeDeformer
 from grt.geometry.mesh import load_mesh
-from grt.geometry.prepare import MeshSettings
 from grt.outputs import crash_records
+from grt.plan import RunPlan
 from grt.scores import ScoreSpec
 from grt.selectors.base import HandleSet
 from grt.targets import build
 from grt.tasks import task_object
 
 log = logging.getLogger(__name__)
-
-
-class BlueTeamError(UserError):
-    """A red-team run that cannot be blue-teamed (no journal, no CrashShape, an untrainable policy)."""
 
 
 @dataclass
@@ -51,12 +46,14 @@ class Geometry:
     red_team_score: float | None = None
 
 
-def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
-    """The red-team run's config (as it ran, migrated to the current format) and its journal records.
+def load_run(run_dir: str | Path) -> tuple[RunPlan, list[dict]]:
+    """The red-team run's plan (:func:`grt.config.saved_plan` of its config as it ran, migrated to the current
+    format; the config itself is its ``config``) and its journal records.
 
     Raises:
         BlueTeamError: not a finished red-team run folder.
     """
+    from grt.config import saved_plan
     from grt.journal import Journal
     from grt.runfolder.record import RUN_CONFIG, is_run_folder, load_run_config
 
@@ -65,35 +62,33 @@ def load_run(run_dir: str | Path) -> tuple[DictConfig, list[dict]]:
     if not is_run_folder(run_dir) or not journal.exists() or not (run_dir / "handles.json").exists():
         raise BlueTeamError(f"{run_dir} is not a red-team run folder (it needs {RUN_CONFIG}, handles.json and "
                             "journal.jsonl): give run=outputs/<task>/<object>/<policy>/<selector>-<optimizer>/<time>")
-    return OmegaConf.create(load_run_config(run_dir)), Journal(journal).records
+    return saved_plan(load_run_config(run_dir), run_dir), Journal(journal).records
 
 
-def run_geometry(run_cfg: DictConfig, run_dir: str | Path, cache_dir: str) -> tuple:
-    """``(nominal, deformer, collision)`` of a red-team run, prepared as the run did: its nominal mesh,
-    the deformer over its handles (a journaled theta gives the candidate's mesh bit for bit) and its
-    collision-part maker (CoACD cache under ``cache_dir``)."""
-    nominal = load_mesh(task_object(run_cfg.task, run_cfg.object, cache_dir), scale=run_cfg.get("object_scale", 1.0),
-                        settings=MeshSettings.from_config(run_cfg.get("mesh")))
-    handles = HandleSet.from_json((Path(run_dir) / "handles.json").read_text())
-    deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **deformer_options(run_cfg.deformer))
-    ev = run_cfg.evaluator
-    collision = make_collision(ev.collision, nominal, OmegaConf.to_container(ev.coacd, resolve=True),
-                               f"{cache_dir}/coacd", ev.max_hull_vertices)
+def run_geometry(run: RunPlan, cache_dir: str) -> tuple:
+    """``(nominal, deformer, collision)`` of a red-team run (its plan, :func:`load_run`), prepared as the run
+    did: its nominal mesh, the deformer over its handles (a journaled theta gives the candidate's mesh bit for
+    bit) and its collision-part maker (CoACD cache under ``cache_dir``)."""
+    nominal = load_mesh(task_object(run.task, run.object, cache_dir), scale=run.object_scale, settings=run.mesh)
+    handles = HandleSet.from_json((run.run_dir / "handles.json").read_text())
+    deformer = ShapeDeformer(nominal, handles.handles, handles.anchors, **run.deformer.options)
+    ev = run.evaluator
+    collision = make_collision(ev["collision"], nominal, ev["coacd"], f"{cache_dir}/coacd", ev["max_hull_vertices"])
     return nominal, deformer, collision
 
 
-def make_evaluator(cfg: DictConfig, task: dict, policy: dict, progress: bool = True) -> SimEvaluator:
+def make_evaluator(evaluator: dict, task: dict, policy: dict, progress: bool = True) -> SimEvaluator:
     """The blue-team's simulator evaluator: the one its config chooses (``evaluator=sim``, the default, or
     ``evaluator=ray``, e.g. with ``evaluator.address=HOST:PORT`` to run the episodes on a Ray cluster),
     with the app's ``workers`` (``conf/blueteam.yaml``). Every geometry of a study comes with its convex
     parts (CoACD, as the paper makes them), so the evaluator never decomposes one itself.
 
     Args:
-        cfg: the ``blueteam`` app's config (``evaluator``, ``workers``, ``paths``).
+        evaluator: the app's ``evaluator`` node (plain, :attr:`grt.blueteam.spec.StudySpec.evaluator`).
         task, policy: the red-team run's task and policy configs (plain).
         progress: show a progress bar per evaluation.
     """
-    return build(cfg.evaluator, "evaluator", task=task, policy=policy, collision="coacd", progress=progress)
+    return build(evaluator, "evaluator", task=task, policy=policy, collision="coacd", progress=progress)
 
 
 def trainable_checkpoint(policy_cfg: dict) -> str:
@@ -177,17 +172,6 @@ def distinct(records: list[dict], exclude: list[dict], count: int) -> list[dict]
             out.append(r)
             seen.add(r["mesh_hash"])
     return out
-
-
-GUARDS = ("fisher", "tolerance")
-
-
-def check_guard(guard: str) -> None:
-    """Refuse an unknown ``blueteam.nominal_guard`` before any work."""
-    if guard not in GUARDS:
-        raise BlueTeamError(f"blueteam.nominal_guard={guard!r} is not a guard: fisher (refuse a checkpoint whose "
-                            "nominal validation is significantly below the start) or tolerance (refuse one more "
-                            "than blueteam.nominal_tolerance below it)")
 
 
 def nominal_regressed(start: list[float], now: list[float], guard: str = "fisher", tolerance: float = 0.05,

@@ -14,11 +14,10 @@ import logging
 from pathlib import Path
 
 import torch
-from omegaconf import DictConfig
 
 from grt.blueteam.core import Geometry, choose_confirmed, make_evaluator, plot_validation, rank_candidates
 from grt.blueteam.guard import GuardRule, NominalGuard, episodes, read_rows
-from grt.config import plain
+from grt.blueteam.spec import StudySpec
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.rl.anchor import NominalAnchor
 from grt.rl.train import TrainSpec, ValidationSpec, export_policy, plot_curve, train
@@ -29,45 +28,44 @@ log = logging.getLogger("grt.blueteam")
 _OWN_KEYS = ("train_cfg", "task_cfg", "obs_spec", "num_actions", "task")
 
 
-def fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: dict, checkpoint: str,
+def fine_tune(spec: StudySpec, out_dir: Path, task: dict, policy: dict, ckpt: dict, checkpoint: str,
               shapes: list[Geometry], val_seeds: list[int], confirm_seeds: list[int]) -> Path:
     """PPO on the mix (resumable), early-stopped on validation episodes, the best validated checkpoints
     confirmed on fresh episodes; returns the policy file.
 
     Args:
-        cfg: the ``blueteam`` app's config (``blueteam``, ``workers``, ``evaluator``).
+        spec: the study's settings (``blueteam.*``, ``workers``, ``evaluator``).
         task, policy: the red-team run's task and policy configs (plain).
         ckpt, checkpoint: the starting policy's checkpoint dict and its path.
         shapes: the nominal object first, then the CrashShapes trained on.
         val_seeds, confirm_seeds: validation and confirmation episode seeds.
     """
-    bt = cfg.blueteam
     policy_file = out_dir / "policy.pt"
     if policy_file.exists():
         return policy_file
-    share = float(bt.nominal_share)
+    share = spec.nominal_share
     weights = [share] + [(1.0 - share) / (len(shapes) - 1)] * (len(shapes) - 1)
-    env = TaskVecEnv(task, [Shape.of(g.mesh, g.parts, g.name) for g in shapes], num_envs=bt.num_envs,
-                     workers=cfg.workers, seed=int(bt.seed), weights=weights, max_steps=bt.max_steps)
-    anchor = make_anchor(cfg, task, checkpoint, shapes[0])
+    env = TaskVecEnv(task, [Shape.of(g.mesh, g.parts, g.name) for g in shapes], num_envs=spec.num_envs,
+                     workers=spec.workers, seed=spec.seed, weights=weights, max_steps=spec.max_steps)
+    anchor = make_anchor(spec, task, checkpoint, shapes[0])
     # validation episodes run on their own workers (idle while PPO collects), two at a time on 2 cores
-    evaluator = make_evaluator(cfg, task, policy, progress=False)  # evaluator=sim|ray
-    rule = GuardRule.of(bt, task)
-    guard = NominalGuard(out_dir, policy, shapes, val_seeds, evaluator, rule, int(bt.val_trials),
-                         int(bt.val_trials_nominal or bt.val_trials), int(bt.confirm.candidates))
-    spec = TrainSpec(
-        _train_cfg(bt, ckpt), out_dir, task["name"], task, iterations=int(bt.iterations), init_checkpoint=checkpoint,
+    evaluator = make_evaluator(spec.evaluator, task, policy, progress=False)  # evaluator=sim|ray
+    rule = GuardRule.of(spec, task)
+    guard = NominalGuard(out_dir, policy, shapes, val_seeds, evaluator, rule, spec.val_trials,
+                         spec.val_trials_nominal, spec.confirm.candidates)
+    training = TrainSpec(
+        _train_cfg(spec, ckpt), out_dir, task["name"], task, iterations=spec.iterations, init_checkpoint=checkpoint,
         save_interval=5, anchor=anchor,
         extra={**{k: v for k, v in ckpt["grt"].items() if k not in _OWN_KEYS},
                "blueteam": {"from": checkpoint, "shapes": [g.name for g in shapes], "weights": weights}},
-        validation=ValidationSpec(guard, interval=int(bt.val_interval), patience=int(bt.val_patience),
+        validation=ValidationSpec(guard, interval=spec.val_interval, patience=spec.val_patience,
                                   perfect=1.0 if rule.binary else None, restart=guard.restart))
     try:
-        result = train(env, spec)
+        result = train(env, training)
     finally:
         env.close()
     try:  # the confirmation swaps the candidates into the validation's workers: no new pool per candidate
-        best = confirm(out_dir, policy, shapes, rule, confirm_seeds, evaluator, int(bt.confirm.candidates))
+        best = confirm(out_dir, policy, shapes, rule, confirm_seeds, evaluator, spec.confirm.candidates)
     finally:
         evaluator.close()
     plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title="blue-team fine-tune")
@@ -79,30 +77,29 @@ def fine_tune(cfg: DictConfig, out_dir: Path, task: dict, policy: dict, ckpt: di
     return export_policy(best, policy_file, metrics={k: v for k, v in result.items() if k != "validation"})
 
 
-def _train_cfg(bt: DictConfig, ckpt: dict) -> dict:
+def _train_cfg(spec: StudySpec, ckpt: dict) -> dict:
     """The starting checkpoint's PPO settings with the fine-tune's overrides."""
     train_cfg = copy.deepcopy(ckpt["grt"]["train_cfg"])
-    train_cfg["algorithm"].update(plain(bt.algorithm))
-    train_cfg["num_steps_per_env"] = int(bt.num_steps_per_env)
+    train_cfg["algorithm"].update(copy.deepcopy(spec.algorithm))
+    train_cfg["num_steps_per_env"] = spec.num_steps_per_env
     # The policy's weights were fitted under its observation statistics; updating them from CrashShape
     # rollouts would shift every input the nominal object gives it (measured: up to 1.4x in a std, 0.3 std
     # in a mean within 30 iterations, and the nominal plug regressed from the first validation).
-    train_cfg["freeze_normalization"] = bool(bt.freeze_normalization)
+    train_cfg["freeze_normalization"] = spec.freeze_normalization
     return train_cfg
 
 
-def make_anchor(cfg: DictConfig, task: dict, checkpoint: str, nominal: Geometry) -> NominalAnchor | None:
+def make_anchor(spec: StudySpec, task: dict, checkpoint: str, nominal: Geometry) -> NominalAnchor | None:
     """The starting policy's actions on its own nominal-object states (``blueteam.anchor``; ``None``: off)."""
-    a = cfg.blueteam.anchor
-    if int(a.updates) <= 0:
+    a = spec.anchor
+    if a.updates <= 0:
         return None
     reference = RslRlPolicy(checkpoint, task=task["name"]).actor  # the policy before fine-tuning, on resume too
-    env = TaskVecEnv(task, [Shape.of(nominal.mesh, nominal.parts, nominal.name)], num_envs=int(a.envs),
-                     workers=cfg.workers, seed=int(cfg.blueteam.seed) + 1, max_steps=cfg.blueteam.max_steps)
+    env = TaskVecEnv(task, [Shape.of(nominal.mesh, nominal.parts, nominal.name)], num_envs=a.envs,
+                     workers=spec.workers, seed=spec.seed + 1, max_steps=spec.max_steps)
     try:
-        anchor = NominalAnchor.record(reference, env, steps=int(a.steps), noise=float(a.noise),
-                                      seed=int(cfg.blueteam.seed), updates=int(a.updates),
-                                      lr=float(cfg.blueteam.algorithm.learning_rate))
+        anchor = NominalAnchor.record(reference, env, steps=a.steps, noise=a.noise, seed=spec.seed,
+                                      updates=a.updates, lr=float(spec.algorithm["learning_rate"]))
     finally:
         env.close()
     log.info("anchor: %d nominal states of the starting policy, %d steps per PPO iteration", len(anchor.targets),

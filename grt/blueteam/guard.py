@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from grt.blueteam.core import Geometry, nominal_regressed, rank_candidates
+from grt.blueteam.spec import StudySpec
 from grt.fileio import atomic_path
 from grt.tasks.base import SIM_ERROR
 
@@ -44,9 +45,9 @@ class GuardRule:
     binary: bool = True
 
     @classmethod
-    def of(cls, bt, task: dict) -> GuardRule:
-        """The rule of a ``blueteam`` config for ``task`` (its ``score`` decides ``binary``)."""
-        return cls(str(bt.nominal_guard), float(bt.nominal_tolerance), float(bt.nominal_alpha),
+    def of(cls, spec: StudySpec, task: dict) -> GuardRule:
+        """The rule of a study's settings for ``task`` (its ``score`` decides ``binary``)."""
+        return cls(spec.nominal_guard, spec.nominal_tolerance, spec.nominal_alpha,
                    str(task.get("score", "success")) == "success")
 
     def regressed(self, start: list[float], now: list[float]) -> tuple[bool, str]:

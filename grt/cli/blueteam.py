@@ -6,7 +6,9 @@ its CrashShapes (paper Table 3); a Hydra app.
     python -m grt.blueteam resume=outputs/blueteam/<time> workers=8 blueteam.rered.enabled=false
     python -m grt.blueteam resume=outputs/blueteam/<time> blueteam.iterations=300 blueteam.val_patience=10
 
-The work and the folder's files: :func:`grt.blueteam.study.blueteam`. The folder is made and locked before
+The work and the folder's files: :func:`grt.blueteam.study.blueteam`, which reads the study's settings as a
+:class:`grt.blueteam.spec.StudySpec` (:func:`study_spec`, made and checked here before torch is imported) and
+runs the re-red-team through :func:`rered_run`. The folder is made and locked before
 Hydra writes there (:class:`grt.cli.callbacks.RunFolderCallback`): a second study in it (the same ``resume=``) is
 refused with one line naming the first's PID, exit code 2.
 
@@ -25,17 +27,21 @@ goes on with that record, the config it last ran with, and a line saying so.
 
 from __future__ import annotations
 
+import functools
 import logging
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from grt.blueteam.spec import BlueTeamError, StudySpec
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
 from grt.config import plain, validate  # also registers schemas and resolvers
 from grt.config.records import ConfigView
+from grt.plan import RunPlan
 from grt.runfolder.lock import discard_new
 from grt.runfolder.record import STUDY_RECORD, ResumeError, resume_or
 from grt.runfolder.resume import STUDY, SavedRun, own_study_config
@@ -51,10 +57,6 @@ def main(cfg: DictConfig) -> None:
         try:
             if not cfg.resume:  # before torch and the simulator are imported: a refused command is quick
                 validate(cfg)  # the evaluator's class imports and takes its keys, nothing unread
-            from grt.blueteam.core import BlueTeamError  # torch and the simulator: not for a refused command
-            from grt.blueteam.study import blueteam
-            from grt.runner import run as red_team
-
             if cfg.resume:  # also when hydra.run.dir is given, which the resume_or resolver then never sees
                 resume = Path(resume_or(cfg.resume, ""))
                 if not in_place:
@@ -65,7 +67,10 @@ def main(cfg: DictConfig) -> None:
                 raise BlueTeamError("give the red-team run to blue-team: python -m grt.blueteam run=<run folder>")
             if cfg.resume:
                 validate(cfg)  # the study's own config: its classes must still import
-            result = blueteam(cfg, out_dir, red_team=red_team)
+            spec = study_spec(cfg)
+            from grt.blueteam.study import blueteam  # torch and the simulator: not for a refused command
+
+            result = blueteam(spec, out_dir, red_team=functools.partial(rered_run, evaluator=spec.evaluator))
         except Exception as exc:
             found = find_user_error(exc)
             if found is None or in_place:  # a study's own folder keeps what it holds
@@ -103,6 +108,48 @@ def resumed_config(cfg: DictConfig, out_dir: Path) -> DictConfig:
         log.warning("blueteam.iterations=%s: the fine-tune is finished (policy.pt in %s), it is not trained again",
                     own.blueteam.iterations, out_dir)
     return own
+
+
+def study_spec(cfg: DictConfig) -> StudySpec:
+    """The study's settings of the app's config, parsed and checked once (:meth:`StudySpec.of`).
+
+    Raises:
+        BlueTeamError: a setting out of range, in one line naming it.
+    """
+    swap = cfg.get("swap_check")
+    return StudySpec.of(plain(cfg.blueteam), run=cfg.run, workers=cfg.workers, cache_dir=cfg.paths.cache_dir,
+                        evaluator=plain(cfg.evaluator), swap_check=plain(swap) if swap is not None else None)
+
+
+#: evaluator keys a candidate's trials depend on (its collision parts): a re-red-team keeps the run's
+SEARCH_EVALUATOR_KEYS = ("collision", "coacd", "max_hull_vertices")
+
+
+def rered_config(run_config: dict, checkpoint: Path, out: Path, evaluator: Mapping | None = None) -> DictConfig:
+    """The re-red-team's config: the red-team run's own (``run_config``, as its folder keeps it: budget, seed,
+    search), the fine-tuned policy, a new folder, and the blue-team's evaluator (``evaluator``, the app's
+    ``evaluator`` node, plain: its backend, e.g. a Ray cluster, and its workers; ``None`` keeps the run's), but the
+    run's collision settings (:data:`SEARCH_EVALUATOR_KEYS`): neither the backend nor the number of workers
+    changes a result."""
+    cfg = OmegaConf.create(dict(run_config))  # a copy: the run's own config stays as it is
+    cfg.policy.checkpoint = str(checkpoint)
+    cfg.paths.output_dir = str(out)
+    cfg.resume = None
+    if evaluator is not None:
+        ev = dict(evaluator)
+        own = OmegaConf.to_container(cfg.evaluator, resolve=False)
+        ev.update({k: own[k] for k in SEARCH_EVALUATOR_KEYS if k in own})
+        cfg.evaluator = ev
+        cfg.budget.workers = ev["workers"]
+    return cfg
+
+
+def rered_run(run: RunPlan, checkpoint: Path, out: Path, evaluator: Mapping | None = None) -> dict:
+    """The study's re-red-team (:data:`grt.blueteam.study.RedTeam`): GRT's red-team run (:func:`grt.runner.run`)
+    of :func:`rered_config` of the run's own config; returns its summary."""
+    from grt.runner import run as red_team
+
+    return red_team(rered_config(run.config, checkpoint, out, evaluator))
 
 
 def cli(argv: list[str] | None = None) -> None:

@@ -23,7 +23,8 @@ folder without one (stopped before its first save) says so in one line and train
 folder whose ``.hydra`` a resume rewrote (before this was so) resumes from that record, with the task,
 training config and object its ``last.pt`` was trained with.
 
-The work and the run folder's files: :func:`grt.rl.policy_training.train_policy`.
+The work and the run folder's files: :func:`grt.rl.policy_training.train_policy`, which reads the training's
+settings as a :class:`grt.rl.spec.PolicyTrainingSpec` made here of the composed config.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from omegaconf import DictConfig, OmegaConf
 from grt.cli._common import CONF_DIR, exit_on_user_error, find_user_error, resumable_cli
 from grt.config import plain, validate  # also registers schemas and resolvers
 from grt.config.records import parse_overrides
+from grt.rl.spec import PolicyTrainingSpec
 from grt.runfolder.lock import discard_new
 from grt.runfolder.record import TRAIN_RECORD, ResumeError, resume_or
 from grt.runfolder.resume import TRAIN_FROM_COMMAND, TRAINING, SavedRun, own_training_config
@@ -62,7 +64,7 @@ def main(cfg: DictConfig) -> float:
                                       f"own folder; give resume={cfg.resume} alone")
                 cfg = resumed_config(cfg, out_dir)
                 validate(cfg)  # the training's own config: its classes must still import
-            result = train_policy(cfg, out_dir)
+            result = train_policy(PolicyTrainingSpec.of(plain(cfg)), out_dir)
         except Exception as exc:
             found = find_user_error(exc)
             if found is None:

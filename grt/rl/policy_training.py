@@ -10,7 +10,8 @@ optimizer state) is the trained policy; ``train.export=PATH`` copies it to PATH 
 a shipped policy (a file under ``grt/policies/checkpoints``, what ``conf/policy/<name>.yaml`` points at)
 is replaced only with ``train.overwrite_shipped=true`` as well, checked before any training.
 
-A resume (``resume=DIR``) trains with the training's own config (:func:`grt.cli.train.resumed_config`).
+A resume (``resume=DIR``) trains with the training's own config (:func:`grt.cli.train.resumed_config`). The
+settings are read from a :class:`grt.rl.spec.PolicyTrainingSpec`, which the app makes of its config.
 """
 
 from __future__ import annotations
@@ -20,18 +21,16 @@ import time
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig
 
-from grt.config import plain
 from grt.errors import OutputError, check_output_file
 from grt.evaluators.collision import make_collision
 from grt.evaluators.pool import build_session
 from grt.evaluators.sim import SimEvaluator
 from grt.geometry.mesh import load_mesh
-from grt.geometry.prepare import MeshSettings
 from grt.policies.base import POLICY_KINDS
 from grt.policies.rsl_rl import RslRlPolicy
 from grt.redteam import episode_seeds
+from grt.rl.spec import PolicyTrainingSpec
 from grt.rl.train import (
     TrainSpec,
     ValidationSpec,
@@ -48,60 +47,59 @@ from grt.tasks import TaskInputError, check_fit, preflight, session_class, task_
 log = logging.getLogger("grt.train")
 
 
-def train_policy(cfg: DictConfig, out_dir: Path) -> dict:
-    """Train (or resume, in ``out_dir``) the policy of the ``train_policy`` config; returns ``train.json``'s
-    figures (``iterations``, ``steps``, ``best_success``, ``wall_s``, ``selected``, ``evaluation``, ...).
+def train_policy(spec: PolicyTrainingSpec, out_dir: Path) -> dict:
+    """Train (or resume, in ``out_dir``) the policy of ``spec``; returns ``train.json``'s figures
+    (``iterations``, ``steps``, ``best_success``, ``wall_s``, ``selected``, ``evaluation``, ...).
 
     Raises:
         OutputError: ``train.export`` names a shipped policy without ``train.overwrite_shipped=true``, or a
             file that cannot be written (before any training).
     """
-    check_export(plain(cfg.train))
-    check_trainable(plain(cfg.task))
-    check_fit(plain(cfg.task))  # no Vulkan: before the object and the workers
-    done = finished(out_dir, int(cfg.train.iterations)) if cfg.get("resume") else None
+    task, train_cfg = spec.task, spec.train
+    check_export(train_cfg)
+    check_trainable(task)
+    check_fit(task)  # no Vulkan: before the object and the workers
+    done = finished(out_dir, int(train_cfg["iterations"])) if spec.resume else None
     if done is not None:  # a finished training: said, and not a file of it changes
         return {**done, "nothing_to_train": f"nothing to train: {out_dir} already trained {done['iterations']} "
-                f"iterations (train.iterations={cfg.train.iterations}); its files are as they were (a larger "
+                f"iterations (train.iterations={train_cfg['iterations']}); its files are as they were (a larger "
                 "train.iterations trains longer)"}
     # built before the simulator starts: a class that cannot be built is one line, nothing written
-    expert = build(cfg.train.bc.expert, "train.bc.expert") if cfg.train.get("bc") else None
-    logger = build(cfg.logger, "logger")
-    mesh = load_mesh(task_object(cfg.task, cfg.object, cfg.paths.cache_dir),
-                     settings=MeshSettings.from_config(cfg.get("mesh")) if cfg.get("mesh") else None)
+    bc = train_cfg.get("bc")
+    expert = build(bc["expert"], "train.bc.expert") if bc else None
+    logger = build(spec.logger, "logger")
+    mesh = load_mesh(task_object(task, spec.object, spec.cache_dir), settings=spec.mesh)
     if expert is not None:  # an expert of another task (train=insertion_state on task=push_cube): one line
         try:
-            preflight(plain(cfg.task), expert, mesh)
+            preflight(task, expert, mesh)
         except TaskInputError as err:
-            raise TaskInputError(f"train.bc.expert (the warm start's expert of train={cfg.train.name}): {err}; "
+            raise TaskInputError(f"train.bc.expert (the warm start's expert of train={spec.name}): {err}; "
                                  "give a train config made for this task, or train.bc=null to start without "
                                  "a warm start") from None
-    collision = make_collision("fast", mesh, None, f"{cfg.paths.cache_dir}/coacd", 64)  # as the evaluator
+    collision = make_collision("fast", mesh, None, f"{spec.cache_dir}/coacd", 64)  # as the evaluator
     parts = collision.parts(mesh)
-    task, train_cfg = plain(cfg.task), plain(cfg.train)
-    env = TaskVecEnv(task, [Shape.of(mesh, parts, str(cfg.object))], num_envs=train_cfg["num_envs"],
+    env = TaskVecEnv(task, [Shape.of(mesh, parts, spec.object)], num_envs=train_cfg["num_envs"],
                      workers=train_cfg["workers"], seed=train_cfg["seed"], max_steps=train_cfg["max_steps"],
                      success_bonus=float(train_cfg.get("success_bonus") or 0.0))
-    bc = train_cfg.get("bc")
-    logger.start(out_dir, name=f"train-{train_cfg['name']}", config=plain(cfg))
+    logger.start(out_dir, name=f"train-{spec.name}", config=spec.config)
     val = train_cfg.get("validation") or {}
     score, session = (None, None) if not val else _validator(task, mesh, parts, int(val["trials"]))
-    spec = TrainSpec.from_config(
-        train_cfg, out_dir, task_name=cfg.task.name, task_cfg=task, init_checkpoint=cfg.init_checkpoint,
-        extra={"policy_name": train_cfg["name"], "object": str(cfg.object)},
+    training = TrainSpec.from_config(
+        train_cfg, out_dir, task_name=task["name"], task_cfg=task, init_checkpoint=spec.init_checkpoint,
+        extra={"policy_name": spec.name, "object": spec.object},
         on_iteration=lambda row: logger.log_iteration(row["iteration"], row),
         expert=expert,
         bc={k: v for k, v in (bc or {}).items() if k != "expert"},
         validation=None if score is None else ValidationSpec(
             score, interval=int(val.get("interval", 10)), patience=int(val.get("patience", 5)), tie=val.get("tie"),
-            perfect=1.0 if str(cfg.task.get("score", "success")) == "success" else None))
+            perfect=1.0 if str(task.get("score", "success")) == "success" else None))
     try:
-        result = train(env, spec)
+        result = train(env, training)
     finally:
         env.close()
         if session is not None:
             session.close()
-    _export(cfg, train_cfg, mesh, out_dir, result)
+    _export(spec, mesh, out_dir, result)
     write_json(out_dir / "train.json", result)
     logger.log_summary({k: v for k, v in result.items() if not isinstance(v, dict)})
     logger.finish()
@@ -124,18 +122,18 @@ def check_trainable(task: dict) -> None:
                          "a ManiSkill task such as task=push_cube)")
 
 
-def _export(cfg: DictConfig, train_cfg: dict, mesh, out_dir: Path, result: dict) -> None:
+def _export(spec: PolicyTrainingSpec, mesh, out_dir: Path, result: dict) -> None:
     """Plot the curve, export the selected checkpoint as ``policy.pt`` (and to ``train.export``), evaluate
     it; adds ``selected``, ``evaluation`` and ``exported`` to ``result``."""
-    plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title=f"{train_cfg['name']} on {cfg.object}")
+    plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title=f"{spec.name} on {spec.object}")
     best = next(out_dir / f for f in ("val_best.pt", "best.pt", "last.pt") if (out_dir / f).exists())
     result["selected"] = best.name
     policy_file = export_policy(best, out_dir / "policy.pt", metrics=result)
-    if cfg.eval_trials:
-        result["evaluation"] = _evaluate(cfg, policy_file, mesh, out_dir)
+    if spec.eval_trials:
+        result["evaluation"] = _evaluate(spec, policy_file, mesh, out_dir)
         export_policy(best, policy_file, metrics=result)
-    if train_cfg.get("export"):
-        dest = export_policy(policy_file, Path(train_cfg["export"]), metrics=result)
+    if spec.train.get("export"):
+        dest = export_policy(policy_file, Path(spec.train["export"]), metrics=result)
         result["exported"] = str(dest)
 
 
@@ -177,14 +175,15 @@ def _validator(task: dict, mesh, parts, trials: int):
     return validate, session
 
 
-def _evaluate(cfg: DictConfig, policy_file: Path, mesh, out_dir: Path) -> dict:
+def _evaluate(spec: PolicyTrainingSpec, policy_file: Path, mesh, out_dir: Path) -> dict:
     """Score the trained policy on ``eval_trials`` seeded episodes (the red-team run's seeds for seed 42)."""
-    policy = {"_target_": "grt.policies.rsl_rl.RslRlPolicy", "checkpoint": str(policy_file), "task": cfg.task.name}
-    seeds = episode_seeds(42, int(cfg.eval_trials))
+    policy = {"_target_": "grt.policies.rsl_rl.RslRlPolicy", "checkpoint": str(policy_file),
+              "task": spec.task["name"]}
+    seeds = episode_seeds(42, spec.eval_trials)
     start = time.perf_counter()
     # train.workers=0 steps the training envs in this process; the evaluation needs a worker process
-    with SimEvaluator(task=plain(cfg.task), policy=policy, workers=max(1, int(cfg.train.workers)), nominal=mesh,
-                      cache_dir=f"{cfg.paths.cache_dir}/coacd") as ev:
+    with SimEvaluator(task=spec.task, policy=policy, workers=max(1, int(spec.train["workers"])), nominal=mesh,
+                      cache_dir=f"{spec.cache_dir}/coacd") as ev:
         res = ev.evaluate([mesh], seeds)[0]
     summary = {**res.summary(), "wall_s": time.perf_counter() - start}
     write_json(out_dir / "evaluation.json", {**summary, "seeds": seeds,

@@ -14,7 +14,8 @@ import pytest
 
 from grt.blueteam.core import Geometry, make_evaluator
 from grt.blueteam.guard import episodes
-from grt.blueteam.study import SEARCH_EVALUATOR_KEYS, rered_config
+from grt.cli.blueteam import SEARCH_EVALUATOR_KEYS, rered_config
+from grt.config import plain
 from grt.evaluators.ray_pool import RayEvaluator
 from grt.evaluators.sim import SimEvaluator
 from tests.evaluators.conftest import u_shape
@@ -54,7 +55,7 @@ def test_validation_episodes_on_ray_equal_those_of_the_worker_processes(toy):
     got = {}
     for choice in ("sim", "ray"):
         cfg = compose_run([f"evaluator={choice}", "workers=2"], config_name="blueteam")
-        with make_evaluator(cfg, task, policy, progress=False) as ev:
+        with make_evaluator(plain(cfg.evaluator), task, policy, progress=False) as ev:
             assert type(ev) is (RayEvaluator if choice == "ray" else SimEvaluator) and ev.workers == 2
             got[choice] = (episodes(policy, shapes, SEEDS, ev), episodes(strict, shapes, SEEDS, ev),
                            ev.backend_info()["backend"])
@@ -65,12 +66,14 @@ def test_validation_episodes_on_ray_equal_those_of_the_worker_processes(toy):
 
 def test_the_re_red_team_runs_on_the_blueteams_backend_with_the_runs_collision_settings(tmp_path):
     from hydra.utils import instantiate
+    from omegaconf import OmegaConf
 
     from grt.config import validate
 
     run_cfg = compose_run(["task=insertion", "policy=insertion_state", "budget=smoke", "evaluator.collision=coacd"])
     bt = compose_run(["evaluator=ray", "evaluator.address=auto", "workers=3"], config_name="blueteam")
-    cfg = rered_config(run_cfg, tmp_path / "policy.pt", tmp_path / "rered", bt.evaluator)
+    saved = OmegaConf.to_container(run_cfg)  # the run's config as its folder keeps it
+    cfg = rered_config(saved, tmp_path / "policy.pt", tmp_path / "rered", plain(bt.evaluator))
     validate(cfg)
     ev = cfg.evaluator
     assert ev._target_.endswith("RayEvaluator") and ev.address == "auto" and ev.workers == cfg.budget.workers == 3
@@ -79,4 +82,5 @@ def test_the_re_red_team_runs_on_the_blueteams_backend_with_the_runs_collision_s
     assert cfg.paths.output_dir == str(tmp_path / "rered") and cfg.budget.seed == run_cfg.budget.seed
     assert instantiate(ev).func is RayEvaluator
     # without the blue-team's evaluator the run's own is kept
-    assert rered_config(run_cfg, tmp_path / "p.pt", tmp_path / "r").evaluator == run_cfg.evaluator
+    assert rered_config(saved, tmp_path / "p.pt", tmp_path / "r").evaluator == run_cfg.evaluator
+    assert saved == OmegaConf.to_container(run_cfg)  # the run's own config is not changed

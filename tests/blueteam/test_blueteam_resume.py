@@ -174,3 +174,13 @@ def test_a_record_a_resume_rewrote_still_resumes(recorded, tmp_path):
     assert not saved.started and saved.overrides == again[:-1]
     assert resume_overrides([f"resume={recorded}"], STUDY) == [*again[:-1], "hydra.output_subdir=.hydra/resume",
                                                                f"resume={recorded}"]
+
+
+def test_a_resume_with_a_free_key_out_of_range_is_one_line_and_the_study_keeps_its_record(recorded):
+    """A free key (``blueteam.iterations``) is checked with the study's settings as the library reads them
+    (:class:`grt.blueteam.spec.StudySpec`), before the red-team run is read or anything is trained."""
+    start = tree(recorded / ".hydra")
+    line = one_error_line(_cli("grt.blueteam", f"resume={recorded}", "blueteam.iterations=0"))
+    assert line.startswith("error: blueteam.iterations=0: give an integer >= 1 (nothing was saved in"), line
+    assert {k: v for k, v in tree(recorded / ".hydra").items() if not k.startswith("resume")} == start
+    assert not (recorded / "metrics.csv").exists() and not (recorded / "scores.json").exists()

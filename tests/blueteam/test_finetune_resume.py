@@ -16,12 +16,13 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from omegaconf import OmegaConf
 
 from grt.blueteam.core import Geometry
+from grt.cli.blueteam import study_spec
 from grt.rl.train import TrainSpec, train
 from grt.rl.vec_env import Shape, TaskVecEnv
 from tests.rl.conftest import TRAIN_CFG
+from tests.runner.conftest import compose_run
 
 RL_TESTS = Path(__file__).resolve().parents[1] / "rl"
 
@@ -83,13 +84,14 @@ def study(tmp_path, monkeypatch):
         from grt.blueteam.finetune import fine_tune
 
         made["ev"].attempt = attempt
-        cfg = OmegaConf.create({"workers": 0, "blueteam": {
-            "nominal_share": 0.5, "num_envs": 2, "seed": 0, "max_steps": 10, "anchor": {"updates": 0},
-            "val_trials": 16, "val_trials_nominal": 4, "confirm": {"candidates": 2}, "iterations": iterations,
-            "val_interval": 1, "val_patience": patience, "algorithm": {"learning_rate": 1e-3},
-            "num_steps_per_env": 8, "freeze_normalization": False, "nominal_guard": "fisher",
-            "nominal_tolerance": 0.05, "nominal_alpha": 0.05}})
-        return fine_tune(cfg, tmp_path / "bt", task, {"checkpoint": start}, ckpt, start, shapes,
+        cfg = compose_run(["workers=0", "blueteam.nominal_share=0.5", "blueteam.num_envs=2", "blueteam.seed=0",
+                           "blueteam.max_steps=10", "blueteam.anchor.updates=0", "blueteam.val_trials=16",
+                           "blueteam.val_trials_nominal=4", "blueteam.confirm.candidates=2",
+                           f"blueteam.iterations={iterations}", "blueteam.val_interval=1",
+                           f"blueteam.val_patience={patience}", "blueteam.algorithm.learning_rate=1e-3",
+                           "blueteam.num_steps_per_env=8", "blueteam.freeze_normalization=false",
+                           "blueteam.nominal_guard=fisher", f"run={tmp_path / 'run'}"], config_name="blueteam")
+        return fine_tune(study_spec(cfg), tmp_path / "bt", task, {"checkpoint": start}, ckpt, start, shapes,
                          list(range(16)), list(range(100, 116)))
 
     return run, make

@@ -81,8 +81,9 @@ def test_an_old_style_config_naming_grt_eval_is_migrated(release_run):
     assert dict(cfg.deformer) == {"lam": 1.0, "method": "exact", "radius": 0.35, "validity": False,
                                   "max_volume_change": None}
     assert cfg.task.nominal_floor == 0.25  # what an absent floor meant for a binary task
-    run_cfg, records = load_run(release_run)  # the blue team reads the same migrated config
-    assert run_cfg == cfg and len(records) == 2
+    run, records = load_run(release_run)  # the blue team reads the same migrated config, as the run's plan
+    assert run.config == OmegaConf.to_container(cfg) and run.task == OmegaConf.to_container(cfg.task, resolve=True)
+    assert run.run_dir == release_run and len(records) == 2
     with pytest.raises(ResumeError, match=r"deformer.method \(the run's: exact, given: smooth\)"):
         resume_overrides([f"resume={release_run}", "deformer.method=smooth"])
 
