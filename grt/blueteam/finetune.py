@@ -8,6 +8,7 @@ nominal guard, the best validated checkpoints confirmed on fresh episodes (resum
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
 import logging
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import torch
 
-from grt.blueteam.core import Geometry, choose_confirmed, make_evaluator, plot_validation, rank_candidates
+from grt.blueteam.core import Geometry, choose_confirmed, plot_validation, rank_candidates
 from grt.blueteam.guard import GuardRule, NominalGuard, episodes, read_rows
 from grt.blueteam.spec import StudySpec
 from grt.policies.rsl_rl import RslRlPolicy
@@ -29,16 +30,19 @@ _OWN_KEYS = ("train_cfg", "task_cfg", "obs_spec", "num_actions", "task")
 
 
 def fine_tune(spec: StudySpec, out_dir: Path, task: dict, policy: dict, ckpt: dict, checkpoint: str,
-              shapes: list[Geometry], val_seeds: list[int], confirm_seeds: list[int]) -> Path:
+              shapes: list[Geometry], val_seeds: list[int], confirm_seeds: list[int], evaluator) -> Path:
     """PPO on the mix (resumable), early-stopped on validation episodes, the best validated checkpoints
     confirmed on fresh episodes; returns the policy file.
 
     Args:
-        spec: the study's settings (``blueteam.*``, ``workers``, ``evaluator``).
+        spec: the study's settings (``blueteam.*``, ``workers``).
         task, policy: the red-team run's task and policy configs (plain).
         ckpt, checkpoint: the starting policy's checkpoint dict and its path.
         shapes: the nominal object first, then the CrashShapes trained on.
         val_seeds, confirm_seeds: validation and confirmation episode seeds.
+        evaluator: the study's evaluator (:func:`grt.blueteam.core.make_evaluator`, ``evaluator=sim|ray``): the
+            validation and confirmation episodes run on its workers, each checkpoint swapped in; its workers
+            stay idle while PPO collects. Shown without progress bars (PPO's own shows).
     """
     policy_file = out_dir / "policy.pt"
     if policy_file.exists():
@@ -48,8 +52,6 @@ def fine_tune(spec: StudySpec, out_dir: Path, task: dict, policy: dict, ckpt: di
     env = TaskVecEnv(task, [Shape.of(g.mesh, g.parts, g.name) for g in shapes], num_envs=spec.num_envs,
                      workers=spec.workers, seed=spec.seed, weights=weights, max_steps=spec.max_steps)
     anchor = make_anchor(spec, task, checkpoint, shapes[0])
-    # validation episodes run on their own workers (idle while PPO collects), two at a time on 2 cores
-    evaluator = make_evaluator(spec.evaluator, task, policy, progress=False)  # evaluator=sim|ray
     rule = GuardRule.of(spec, task)
     guard = NominalGuard(out_dir, policy, shapes, val_seeds, evaluator, rule, spec.val_trials,
                          spec.val_trials_nominal, spec.confirm.candidates)
@@ -60,14 +62,13 @@ def fine_tune(spec: StudySpec, out_dir: Path, task: dict, policy: dict, ckpt: di
                "blueteam": {"from": checkpoint, "shapes": [g.name for g in shapes], "weights": weights}},
         validation=ValidationSpec(guard, interval=spec.val_interval, patience=spec.val_patience,
                                   perfect=1.0 if rule.binary else None, restart=guard.restart))
-    try:
-        result = train(env, training)
-    finally:
-        env.close()
-    try:  # the confirmation swaps the candidates into the validation's workers: no new pool per candidate
+    with _without_progress(evaluator):
+        try:
+            result = train(env, training)
+        finally:
+            env.close()
+        # the confirmation swaps the candidates into the validation's workers: no new pool per candidate
         best = confirm(out_dir, policy, shapes, rule, confirm_seeds, evaluator, spec.confirm.candidates)
-    finally:
-        evaluator.close()
     plot_curve(out_dir / "metrics.csv", out_dir / "curve.png", title="blue-team fine-tune")
     if best is None:  # no confirmation asked for (confirm.candidates=0), or nothing validated
         best = out_dir / ("val_best.pt" if (out_dir / "val_best.pt").exists() else "last.pt")
@@ -75,6 +76,17 @@ def fine_tune(spec: StudySpec, out_dir: Path, task: dict, policy: dict, ckpt: di
         chosen = int(torch.load(best, map_location="cpu", weights_only=False).get("iter", -2)) + 1
         plot_validation(read_rows(guard.detail), out_dir / "validation.png", str(task.get("score", "success")), chosen)
     return export_policy(best, policy_file, metrics={k: v for k, v in result.items() if k != "validation"})
+
+
+@contextlib.contextmanager
+def _without_progress(evaluator):
+    """``evaluator`` showing no progress bar (the validation's episodes run inside PPO's bar), then as it was."""
+    shown = getattr(evaluator, "progress", False)
+    evaluator.progress = False
+    try:
+        yield evaluator
+    finally:
+        evaluator.progress = shown
 
 
 def _train_cfg(spec: StudySpec, ckpt: dict) -> dict:

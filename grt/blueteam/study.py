@@ -86,11 +86,14 @@ def blueteam(spec: StudySpec, out_dir: Path, red_team: RedTeam | None = None) ->
     val_seeds = episode_seeds(seed + 2000, max(spec.val_trials, spec.val_trials_nominal))
     confirm_seeds = episode_seeds(seed + 3000, spec.confirm.trials)
     everything = [nominal, *crash, *heldout]
-    scores = _Scores(out_dir / "scores.json", everything, test_seeds, spec.evaluator)
-    before = scores.get("before", task, policy_cfg)
-    fine_tuned = fine_tune(spec, out_dir, task, policy_cfg, ckpt, checkpoint, [nominal, *crash], val_seeds,
-                           confirm_seeds)
-    after = scores.get("after", task, {**policy_cfg, "checkpoint": str(fine_tuned)})
+    scores = _Scores(out_dir / "scores.json", everything, test_seeds)
+    # one evaluator for the scores, the validation and the confirmation: its workers start at its first episodes
+    # (none when a resumed study has them all), and each policy after the first is swapped into them
+    with make_evaluator(spec.evaluator, task, policy_cfg) as ev:
+        before = scores.get("before", ev)
+        fine_tuned = fine_tune(spec, out_dir, task, policy_cfg, ckpt, checkpoint, [nominal, *crash], val_seeds,
+                               confirm_seeds, ev)
+        after = scores.get("after", ev, {**policy_cfg, "checkpoint": str(fine_tuned)})
 
     rows = _table_rows(Path(checkpoint).stem, crash, heldout, before, after, spec.eval_trials)
     write_table(out_dir, rows, run.score)
@@ -147,15 +150,16 @@ class _Scores:
     """``scores.json``: every geometry's score and per-trial outcomes on the same seeds, ``before`` and
     ``after`` the fine-tune; a side already scored (a resumed study) is read back, not simulated."""
 
-    def __init__(self, path: Path, geometries: list[Geometry], seeds: list[int], evaluator: dict):
-        self.path, self.geometries, self.seeds, self.evaluator = path, geometries, seeds, evaluator
+    def __init__(self, path: Path, geometries: list[Geometry], seeds: list[int]):
+        self.path, self.geometries, self.seeds = path, geometries, seeds
         self.data = json.loads(path.read_text()) if path.exists() else {}
 
-    def get(self, side: str, task: dict, policy: dict) -> dict:
+    def get(self, side: str, evaluator, policy: dict | None = None) -> dict:
+        """The scores of ``side``, simulated on ``evaluator`` with ``policy`` swapped in (``None``: its own)
+        unless ``scores.json`` has them."""
         if side not in self.data:
-            with make_evaluator(self.evaluator, task, policy) as ev:
-                results = ev.evaluate([g.mesh for g in self.geometries], self.seeds,
-                                      parts=[g.parts for g in self.geometries])
+            results = evaluator.evaluate([g.mesh for g in self.geometries], self.seeds,
+                                         parts=[g.parts for g in self.geometries], policy=policy)
             self.data[side] = {g.name: {"score": r.score, "role": g.role, "outcomes": r.outcomes}
                                for g, r in zip(self.geometries, results, strict=True)}
             self.path.write_text(json.dumps(self.data, indent=1))

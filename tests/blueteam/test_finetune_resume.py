@@ -77,7 +77,6 @@ def study(tmp_path, monkeypatch):
 
     def make(crash: dict, kill: dict, start_nominal: dict | None = None) -> _Evaluator:
         made["ev"] = _Evaluator(shapes[0].mesh, start, crash, kill, start_nominal)
-        monkeypatch.setattr("grt.blueteam.finetune.make_evaluator", lambda *a, **k: made["ev"])
         return made["ev"]
 
     def run(attempt: int, iterations: int, patience: int) -> Path:
@@ -92,7 +91,7 @@ def study(tmp_path, monkeypatch):
                            "blueteam.num_steps_per_env=8", "blueteam.freeze_normalization=false",
                            "blueteam.nominal_guard=fisher", f"run={tmp_path / 'run'}"], config_name="blueteam")
         return fine_tune(study_spec(cfg), tmp_path / "bt", task, {"checkpoint": start}, ckpt, start, shapes,
-                         list(range(16)), list(range(100, 116)))
+                         list(range(16)), list(range(100, 116)), made["ev"])
 
     return run, make
 
