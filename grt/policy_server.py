@@ -146,7 +146,7 @@ class PolicyServer:
             info["context_radius"] = float(context_radius)
         self.info, self._act, self._reset, self._plan = info, act, reset, plan
         self.token = token or None
-        self._lock = threading.Lock()
+        self._lock, self._serving = threading.Lock(), threading.Event()
         self._server = ws_serve(self._handle, host, int(port), max_size=int(max_message), compression=None)
         self.host, self.port = host, int(self._server.socket.getsockname()[1])
 
@@ -158,10 +158,16 @@ class PolicyServer:
 
     def serve_forever(self) -> None:
         """Answer requests until :meth:`shutdown` (or Ctrl-C)."""
+        self._serving.set()
         self._server.serve_forever()
 
     def shutdown(self) -> None:
-        self._server.shutdown()
+        """Stop answering and close the port; returns at once when :meth:`serve_forever` never ran (a Ctrl-C
+        between the URL's line and the loop: websockets' own shutdown would wait for the loop forever)."""
+        if self._serving.is_set():
+            self._server.shutdown()
+        else:
+            self._server.socket.close()
 
     def __enter__(self) -> PolicyServer:
         threading.Thread(target=self.serve_forever, daemon=True).start()

@@ -123,6 +123,19 @@ def test_binds_this_machine_only_by_default():
         assert server.host == "127.0.0.1" and server.url.startswith("ws://127.0.0.1:")
 
 
+def test_a_server_stopped_before_it_served_closes_its_port_at_once():
+    """A Ctrl-C between ``grt.serve``'s URL line and its loop: the shutdown waited forever for a loop that
+    never ran (the server hung until killed)."""
+    server = PolicyServer(act=lambda obs: obs["state"][:, :2], kind="batched", task="t", obs={"state": (3,)},
+                          action_size=2, port=0)
+    stopper = threading.Thread(target=server.shutdown, daemon=True)
+    stopper.start()
+    stopper.join(timeout=10)
+    assert not stopper.is_alive(), "shutdown() of a server that never served did not return"
+    with pytest.raises(OSError):
+        socket.create_connection(("127.0.0.1", server.port), timeout=2).close()
+
+
 # ------------------------------------------------------------------------------------------- replies
 def test_timeouts_errors_and_malformed_replies_are_reply_errors():
     state = {"state": np.zeros((1, 4), np.float32)}
