@@ -22,6 +22,7 @@ from omegaconf import OmegaConf, open_dict
 from grt.evaluators.ray_pool import ClusterError, RayEvaluator, connect, version_mismatch
 from grt.evaluators.sim import SimEvaluator
 from grt.targets import ClassError
+from tests.conftest import GRASP_EVALUATION
 
 ray = pytest.importorskip("ray")
 
@@ -238,20 +239,18 @@ def test_the_pool_kills_a_hung_worker_too(toy_configs, u_mesh, reference, cache_
 
 # --------------------------------------------------------------- the real simulator
 @pytest.mark.slow
-def test_grasp_trials_equal_the_pools_bit_for_bit(tmp_path):
+def test_grasp_trials_equal_the_pools_bit_for_bit(grasp_evaluation, tmp_path):
     """The grasp task's real simulation (GraspSession, antipodal policy; the two-camera variant: a process's first
     depth capture takes ~5 s there, ~12 s with six): ``grt.evaluate`` with evaluator=ray, on a Ray the command
-    starts and stops (address=local), writes the trials evaluator=sim writes, field for field but the times."""
-    records = {}
-    for backend in ("sim", "ray"):
-        proc = subprocess.run([sys.executable, "-m", "grt.evaluate", "task=grasp_2cam", "budget=smoke",
-                               "budget.trials=2", "budget.workers=1", f"evaluator={backend}",
-                               f"hydra.run.dir={tmp_path / backend}"],
-                              cwd=ROOT, env=_child_env(), capture_output=True, text=True, timeout=600)
-        assert proc.returncode == 0, proc.stderr[-4000:]
-        records[backend] = json.loads((tmp_path / backend / "evaluation.json").read_text())
-    sim, on_ray = records["sim"], records["ray"]
-    assert len(sim["trials"]) == 2 and on_ray["seeds"] == sim["seeds"]
+    starts and stops (address=local), writes the trials evaluator=sim writes (the suite's shared evaluation,
+    conftest.py's ``GRASP_EVALUATION``), field for field but the times."""
+    proc = subprocess.run([sys.executable, "-m", "grt.evaluate", *GRASP_EVALUATION, "evaluator=ray",
+                           f"hydra.run.dir={tmp_path / 'ray'}"],
+                          cwd=ROOT, env=_child_env(), capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    on_ray = json.loads((tmp_path / "ray" / "evaluation.json").read_text())
+    sim = json.loads((grasp_evaluation[0] / "evaluation.json").read_text())
+    assert sim["evaluator"]["backend"] != "ray" and len(sim["trials"]) == 2 and on_ray["seeds"] == sim["seeds"]
     assert [_timeless(t) for t in on_ray["trials"]] == [_timeless(t) for t in sim["trials"]]
     assert (on_ray["score"], on_ray["outcomes"], on_ray["mesh_hash"]) == (sim["score"], sim["outcomes"], sim["mesh_hash"])
     block = on_ray["evaluator"]
