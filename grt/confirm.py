@@ -38,6 +38,11 @@ TEST = "one-sided paired sign-flip permutation test of per-episode differences, 
 _STREAM = 0x636F6E66  # "conf": the fresh seeds' own random stream, apart from the search's
 
 
+# The object's stance when the policy looked (trial info of the grasp task), and what counts as not at rest.
+STANCE = ("tilt_deg", "spin_dps")
+SPIN_DPS, TILT_DEG = 30.0, 45.0
+
+
 def confirm_seeds(seed: int, n: int, exclude: list[int]) -> list[int]:
     """``n`` episode seeds drawn from ``seed``'s confirmation stream, none of them in ``exclude``.
 
@@ -191,7 +196,8 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
                        "mesh_hash": mesh_hash(mesh.vertices, mesh.faces), "ci95": list(result.ci95(ci)),
                        "outcomes": result.outcomes,
                        "trials": [{"seed": o.seed, "score": float(o.score) if o.mode != "sim_error" else float("nan"),
-                                   "mode": o.mode} for o in result.trials]})
+                                   "mode": o.mode, **{k: o.info[k] for k in STANCE if k in o.info}}
+                                  for o in result.trials]})
 
     if missing:
         evaluator.evaluate_each([todo[k][2] for k in missing], seeds, finish)
@@ -207,7 +213,7 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
                        "drop": _drop(s0, shape["score"]),
                        "drop_ci95": list(paired_drop_interval(shape_trials, nominal_trials, seed=seed)),
                        "p_value": paired_drop_p(shape_trials, nominal_trials, seed=seed),
-                       "outcomes": shape["outcomes"]})
+                       "outcomes": shape["outcomes"], **unsettled(shape["trials"])})
     for shape, adjusted in zip(shapes, holm([s["p_value"] for s in shapes]), strict=True):
         shape["p_holm"] = adjusted
         shape["confirmed"] = bool(adjusted < ALPHA and shape["score"] < s0)
@@ -218,7 +224,19 @@ def confirm(run_dir: Path, best: list[dict], meshes: list[trimesh.Trimesh], nomi
             "confirmed_drop_ci95": shapes[0]["drop_ci95"] if shapes else None,
             "confirmed_p": shapes[0]["p_holm"] if shapes else None,
             "interval": INTERVAL, "wall_s": round(time.perf_counter() - start, 1),
-            "confirmed": sum(s["confirmed"] for s in shapes)}
+            "confirmed": sum(s["confirmed"] for s in shapes), **unsettled(nom["trials"])}
+
+
+def unsettled(trials: list[dict]) -> dict:
+    """``{"unsettled": n, "stance_trials": m}``: of the ``m`` trials that recorded the object's stance when the
+    policy looked (the grasp task's ``tilt_deg``, ``spin_dps``), the ``n`` where it was still turning faster than
+    :data:`SPIN_DPS` or had tipped past :data:`TILT_DEG` (a shape that cannot stand: every policy fails it
+    alike); ``{}`` when no trial recorded it (other tasks, journals written before)."""
+    seen = [t for t in trials if all(k in t for k in STANCE)]
+    if not seen:
+        return {}
+    return {"unsettled": sum(t["spin_dps"] > SPIN_DPS or t["tilt_deg"] > TILT_DEG for t in seen),
+            "stance_trials": len(seen)}
 
 
 def _drop(s0: float, score: float) -> float:

@@ -373,7 +373,8 @@ def print_summary(summary: dict, run_dir: Path) -> None:
     if conf:
         lines = [f"rank {c['rank']}: {score.fmt(c['score'], unit=True)} (search {score.fmt(c['search_score'])}), "
                  f"drop {fmt(c['drop'], '{:.1%}')}, p = {c['p_holm']:.3g} (Holm)"
-                 f"{' confirmed' if c['confirmed'] else ' not confirmed'}" for c in conf["shapes"]]
+                 f"{' confirmed' if c['confirmed'] else ' not confirmed'}{_unsettled_words(c, conf)}"
+                 for c in conf["shapes"]]
         console.print(f"confirmed on {conf['trials']} fresh episodes: S0 {score.fmt(conf['s0'], unit=True)}; "
                       f"{figures.confirmed_verdict(summary)}\n  " + "\n  ".join(lines), markup=False)
     shapes = summary.get("crashshapes") or summary.get("best_candidates") or []
@@ -388,3 +389,14 @@ def print_summary(summary: dict, run_dir: Path) -> None:
         f"no CrashShape found; best candidates (not failures): {run_dir / 'best'}{units}"
     console.print(f"run folder: {run_dir}\n  curve: {run_dir / 'curve.png'}\n  shapes: {run_dir / 'shapes.png'}"
                   f"\n  {where}")
+
+
+def _unsettled_words(shape: dict, conf: dict) -> str:
+    """``; not at rest when the policy looked in n/m episodes (nominal k/m) ...`` for a CrashShape whose object
+    was still falling or lay on its side in most of its confirmation episodes; ``""`` otherwise."""
+    n, m = shape.get("unsettled"), shape.get("stance_trials")
+    if not m or n * 2 <= m:
+        return ""
+    return (f"; in {n}/{m} episodes the object was still falling or lay on its side when the policy looked "
+            f"(nominal {conf.get('unsettled', 0)}/{conf.get('stance_trials', m)}): this drop is the shape's "
+            "stability more than the policy's")

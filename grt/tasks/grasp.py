@@ -160,7 +160,8 @@ class GraspSession(TaskSession):
     # --- episode -------------------------------------------------------------------------------------
     def _episode(self, seed: int, info: dict) -> str:
         self._settle(seed)
-        info["placement"] = dict(self.unwrapped.placement)
+        motion = self._motion()  # a shape that cannot stand is still falling here, when the policy looks
+        info.update(placement=dict(self.unwrapped.placement), tilt_deg=motion["tilt_deg"], spin_dps=motion["spin_dps"])
         self._check_health()
         self._rest_z = self._object_pose()[2]
         if seed in self._planned:  # planned ahead in a batch (prefetch): the same cloud, the same grasps
@@ -192,6 +193,28 @@ class GraspSession(TaskSession):
         """What the policy sees in trial ``seed``: the scene rebuilt from the seed, settled, captured."""
         self._settle(int(seed))
         return self._observe()
+
+    def rest_pose(self, seed: int, hold: int = 0) -> dict:
+        """Trial ``seed``'s scene rebuilt and settled as a trial settles it, before the policy acts: where the
+        object is (``position``, m), how far it tipped (``tilt_deg``: its up axis against the world's; it is
+        placed upright) and whether it still moves (``speed_mps``, ``spin_dps``); with ``hold`` > 0 control
+        steps more, ``held_tilt_deg``: where it ends up. A shape that cannot stand fails every grasp policy."""
+        self._settle(int(seed))
+        out = {"position": self._object_pose().round(6).tolist(), **self._motion()}
+        if hold > 0:
+            self._move(self._target, int(hold))
+            out["held_tilt_deg"] = self._motion()["tilt_deg"]
+        return out
+
+    def _motion(self) -> dict:
+        """The object's tilt (deg between its up axis and the world's; 0: upright, as placed), speed (m/s) and
+        spin (deg/s) now."""
+        obj = self.unwrapped.obj
+        _, x, y, _ = obj.pose.q[0].numpy().astype(np.float64)  # (w, x, y, z)
+        tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (x * x + y * y), -1.0, 1.0)))
+        return {"tilt_deg": round(float(tilt), 2),
+                "speed_mps": round(float(np.linalg.norm(obj.linear_velocity[0].numpy())), 4),
+                "spin_dps": round(float(np.degrees(np.linalg.norm(obj.angular_velocity[0].numpy()))), 2)}
 
     def _settle(self, seed: int) -> None:
         """Rebuild trial ``seed``'s scene (a trial depends only on object and seed) and let it come to rest."""

@@ -90,6 +90,20 @@ def test_trials_are_deterministic_and_never_silent(session):
     assert first.score == float(first.success) == float(first.mode == "success")
 
 
+def test_the_rest_pose_tells_a_shape_that_cannot_stand(session):
+    """A deformed bottle that fell over before the policy acted failed every grasp policy alike ('missed'):
+    each trial records how far the object tipped while settling, and rest_pose measures it alone."""
+    session.load_object(box(), [np.asarray(box().vertices)])
+    upright = session.rest_pose(5)
+    assert upright["tilt_deg"] < 2.0 and abs(upright["position"][2]) < 0.005  # its origin: the base, on the table
+    trial = session.run_trial(5).info
+    assert (trial["tilt_deg"], trial["spin_dps"]) == (upright["tilt_deg"], upright["spin_dps"])
+    on_edge = standing(box().apply_transform(trimesh.transformations.rotation_matrix(np.radians(30), [1, 0, 0])))
+    session.load_object(on_edge, [np.asarray(on_edge.vertices)])
+    fallen = session.rest_pose(5, hold=100)
+    assert 20.0 < fallen["held_tilt_deg"] < 70.0, fallen  # it fell onto a face (30 or 60 degrees from as placed)
+
+
 def test_same_content_under_a_new_name_gives_the_same_result(session, tmp_path):
     outcomes, clouds = [], []
     for name, mesh in (("a.stl", box()), ("b.stl", box()), ("a.stl", wide_sphere())):
