@@ -220,7 +220,7 @@ def plot_margins(rows: list[dict], path: Path, small: dict | None = None) -> Pat
     ax.set_xscale("log")
     ax.set_xlabel("size: largest surface displacement (mm)")
     ax.set_title("margins: random (grey), adversarial (red), smallest shrunk CrashShape (x)"
-                 + ("; green: the paper's reach" if small else ""), fontsize=9)
+                 + ("\ngreen: what the paper calls small on that object" if small else ""), fontsize=9)
     ax.grid(alpha=0.3, which="both", axis="x")
     fig.tight_layout()
     fig.savefig(path)
