@@ -392,8 +392,9 @@ def print_summary(summary: dict, run_dir: Path) -> None:
 
 
 def _unsettled_words(shape: dict, conf: dict) -> str:
-    """``; not at rest when the policy looked in n/m episodes (nominal k/m) ...`` for a CrashShape whose object
-    was still falling or lay on its side in most of its confirmation episodes; ``""`` otherwise."""
+    """``; in n/m episodes the object was still falling or lay on its side ... (nominal k/m) ...`` for a
+    CrashShape whose object was so in most of its confirmation episodes (:func:`grt.confirm.unsettled`); ``""``
+    otherwise."""
     n, m = shape.get("unsettled"), shape.get("stance_trials")
     if not m or n * 2 <= m:
         return ""

@@ -160,9 +160,10 @@ class GraspSession(TaskSession):
     # --- episode -------------------------------------------------------------------------------------
     def _episode(self, seed: int, info: dict) -> str:
         self._settle(seed)
-        motion = self._motion()  # a shape that cannot stand is still falling here, when the policy looks
-        info.update(placement=dict(self.unwrapped.placement), tilt_deg=motion["tilt_deg"], spin_dps=motion["spin_dps"])
+        info["placement"] = dict(self.unwrapped.placement)
         self._check_health()
+        motion = self._motion()  # a shape that cannot stand is still falling here, when the policy looks
+        info.update(tilt_deg=motion["tilt_deg"], spin_dps=motion["spin_dps"])
         self._rest_z = self._object_pose()[2]
         if seed in self._planned:  # planned ahead in a batch (prefetch): the same cloud, the same grasps
             grasps, info["capture_s"], info["num_points"], info["plan_s"] = self._planned.pop(seed)
