@@ -28,12 +28,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _terminal_sigint() -> None:
+    """SIGINT as a terminal gives it (default action, not blocked): a process inherits an ignored or blocked
+    SIGINT from its parent (an earlier test of the pytest worker may leave it so, as `cmd &` does in a script)
+    and then never sees Ctrl-C, by Unix's rules; the Ctrl-C test hung in the full suite alone."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Served:
     """``python -m grt.serve ARGS`` (or another command) as a subprocess; its first line is the URL."""
 
     def __init__(self, *args: str, command: list[str] | None = None, cwd: Path = ROOT):
         self.proc = subprocess.Popen(command or [sys.executable, "-m", "grt.serve", *args], cwd=cwd, env=ENV,
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     preexec_fn=_terminal_sigint)
         self.url = self.proc.stdout.readline().strip()
         threading.Thread(target=self.proc.stdout.read, daemon=True).start()  # never block the server on a pipe
         threading.Thread(target=self.proc.stderr.read, daemon=True).start()
