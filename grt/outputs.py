@@ -393,10 +393,10 @@ def print_summary(summary: dict, run_dir: Path) -> None:
 
 def _unsettled_words(shape: dict, conf: dict) -> str:
     """``; in n/m episodes the object was still moving or had fallen over ... (nominal k/m) ...`` for a
-    CrashShape whose object was so in most of its confirmation episodes (:func:`grt.confirm.unsettled`); ``""``
-    otherwise."""
+    confirmed CrashShape whose object was so in most of its confirmation episodes (:func:`grt.confirm.unsettled`);
+    ``""`` otherwise."""
     n, m = shape.get("unsettled"), shape.get("stance_trials")
-    if not m or n * 2 <= m:
+    if not shape.get("confirmed") or not m or n * 2 <= m:
         return ""
     return (f"; in {n}/{m} episodes the object was still moving or had fallen over when the policy looked "
             f"(nominal {conf.get('unsettled', 0)}/{conf.get('stance_trials', m)}): this drop is the shape's "
